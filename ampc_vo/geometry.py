@@ -1,0 +1,169 @@
+"""Pure geometry helpers shared by every module (DESIGN section 1 and 2).
+
+Poses are 4x4 homogeneous numpy arrays named ``T_<to>_<from>``; ``T_world_tractor`` maps
+tractor-frame points into the world. Relative motion of one body between views i and j is
+``T_i_j = inv(T_world_i) @ T_world_j`` (paper ``R_AA'``, ``t_AA'``). Angles are radians.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ampc_vo.errors import BearingError
+
+ArrayF = np.ndarray
+
+
+def rot_z(angle: float) -> ArrayF:
+    """Rotation about z by ``angle`` (paper eq. (7): Q = Rz(theta))."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rot_x(angle: float) -> ArrayF:
+    """Rotation about x by ``angle``."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_y(angle: float) -> ArrayF:
+    """Rotation about y by ``angle``."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def unit_heading(angle: float | ArrayF) -> ArrayF:
+    """DESIGN's ``u(a) = (cos a, sin a, 0)``; vectorised over ``angle``."""
+    angle = np.asarray(angle, dtype=float)
+    return np.stack([np.cos(angle), np.sin(angle), np.zeros_like(angle)], axis=-1)
+
+
+def unit_normal(angle: float | ArrayF) -> ArrayF:
+    """DESIGN's ``n(a) = (-sin a, cos a, 0)``; vectorised over ``angle``."""
+    angle = np.asarray(angle, dtype=float)
+    return np.stack([-np.sin(angle), np.cos(angle), np.zeros_like(angle)], axis=-1)
+
+
+def wrap_angle(angle: float | ArrayF) -> float | ArrayF:
+    """Wrap an angle (or array of angles) to [-pi, pi)."""
+    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def skew(vector: ArrayF) -> ArrayF:
+    """Cross-product matrix ``[v]x`` with ``skew(a) @ b == cross(a, b)``."""
+    x, y, z = vector
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def make_pose(rotation: ArrayF, translation: ArrayF) -> ArrayF:
+    """4x4 pose from a 3x3 rotation and a 3-vector translation."""
+    pose = np.eye(4)
+    pose[:3, :3] = rotation
+    pose[:3, 3] = translation
+    return pose
+
+
+def invert_pose(pose: ArrayF) -> ArrayF:
+    """Inverse of a 4x4 rigid transform."""
+    rotation = pose[:3, :3]
+    inverse = np.eye(4)
+    inverse[:3, :3] = rotation.T
+    inverse[:3, 3] = -rotation.T @ pose[:3, 3]
+    return inverse
+
+
+def relative_pose(T_world_i: ArrayF, T_world_j: ArrayF) -> ArrayF:
+    """``T_i_j = inv(T_world_i) @ T_world_j`` (so ``p_i = R_ij p_j + t_ij``)."""
+    return invert_pose(T_world_i) @ T_world_j
+
+
+def planar_pose(x: float, y: float, yaw: float, z: float = 0.0) -> ArrayF:
+    """Pose of a body on the ground plane at (x, y, z) with heading ``yaw``."""
+    return make_pose(rot_z(yaw), np.array([x, y, z], dtype=float))
+
+
+def yaw_of(rotation: ArrayF) -> float:
+    """Heading (rotation about world z) of a rotation matrix or 4x4 pose."""
+    return float(np.arctan2(rotation[1, 0], rotation[0, 0]))
+
+
+def transform_points(pose: ArrayF, points: ArrayF) -> ArrayF:
+    """Apply a 4x4 pose to (N, 3) points: ``R p + t``."""
+    points = np.asarray(points, dtype=float)
+    return points @ pose[:3, :3].T + pose[:3, 3]
+
+
+def quat_xyzw_from_rotation(rotation: ArrayF) -> ArrayF:
+    """Unit quaternion (x, y, z, w) with w >= 0 from a rotation matrix (Shepperd's method)."""
+    m = np.asarray(rotation, dtype=float)
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    if trace > 0.0:
+        s = 2.0 * np.sqrt(trace + 1.0)
+        q = np.array([(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s])
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = np.array([0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s])
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = np.array([(m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s])
+    else:
+        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = np.array([(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s])
+    q /= np.linalg.norm(q)
+    return -q if q[3] < 0 else q
+
+
+def rotation_from_quat_xyzw(quaternion: ArrayF) -> ArrayF:
+    """Rotation matrix from a unit quaternion (x, y, z, w)."""
+    x, y, z, w = np.asarray(quaternion, dtype=float)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def pose_to_xyz_quat(pose: ArrayF) -> ArrayF:
+    """(x, y, z, qx, qy, qz, qw) of a 4x4 pose, the row layout of TUM files and groundtruth.csv."""
+    return np.concatenate([pose[:3, 3], quat_xyzw_from_rotation(pose[:3, :3])])
+
+
+def pose_from_xyz_quat(row: ArrayF) -> ArrayF:
+    """4x4 pose from (x, y, z, qx, qy, qz, qw)."""
+    row = np.asarray(row, dtype=float)
+    return make_pose(rotation_from_quat_xyzw(row[3:7]), row[:3])
+
+
+def rotation_angle(rotation: ArrayF) -> float:
+    """Angle (radians) of a rotation matrix; used for rotation errors."""
+    cos_angle = np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.arccos(cos_angle))
+
+
+def normalize_bearings(vectors: ArrayF) -> ArrayF:
+    """Scale (N, 3) vectors to unit length; raises :class:`BearingError` for zero/NaN rows."""
+    vectors = np.asarray(vectors, dtype=float)
+    norms = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    if not np.all(np.isfinite(norms)) or np.any(norms < 1e-12):
+        raise BearingError("bearing vectors must be finite and non-zero")
+    return vectors / norms
+
+
+def check_bearings(bearings: ArrayF, name: str = "bearings", count: int | None = None) -> ArrayF:
+    """Validate an (N, 3) array of bearings: right shape, finite, non-zero length.
+
+    Returns the bearings as float64 unit vectors. Raises :class:`BearingError` (a ``ValueError``)
+    naming ``name`` and the problem, so bad input never reaches GTSAM or a solver.
+    """
+    array = np.asarray(bearings, dtype=float)
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise BearingError(f"{name} must have shape (N, 3), got {array.shape}")
+    if count is not None and array.shape[0] != count:
+        raise BearingError(f"{name} must have {count} rows, got {array.shape[0]}")
+    if not np.all(np.isfinite(array)):
+        raise BearingError(f"{name} contains NaN or infinite values")
+    norms = np.linalg.norm(array, axis=1)
+    if np.any(norms < 1e-9):
+        raise BearingError(f"{name} contains zero-length vectors")
+    return array / norms[:, None]

@@ -1,0 +1,48 @@
+"""Per-frame feature observations: the one currency between measurement sources and the backend.
+
+Two sources produce the same type (DESIGN section 4): the image frontend (``frontend``) tracks
+features in images, and the simulator's bearing measurements (``simulation``) replay
+``measurements.npz``. The backend consumes :class:`FrameObservations` and does not know which.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CameraObservations:
+    """Tracked features of one camera in one frame.
+
+    ``track_ids`` (K,) int64 are unique within the camera: the same id in two frames of the same
+    camera is the same physical point. ``pixels`` (K, 2); ``bearings`` (K, 3) unit vectors in the
+    camera frame (OpenCV axes).
+    """
+
+    camera: str
+    track_ids: np.ndarray
+    pixels: np.ndarray
+    bearings: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.track_ids.shape[0])
+
+    @staticmethod
+    def empty(camera: str) -> "CameraObservations":
+        return CameraObservations(camera, np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3)))
+
+
+@dataclass(frozen=True)
+class FrameObservations:
+    """All cameras' observations at one frame (``frame`` index, ``timestamp`` in seconds)."""
+
+    frame: int
+    timestamp: float
+    cameras: dict[str, CameraObservations] = field(default_factory=dict)
+
+
+def match_tracks(first: CameraObservations, second: CameraObservations) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``(index_first, index_second)`` of the track ids both observations share."""
+    _, index_first, index_second = np.intersect1d(first.track_ids, second.track_ids, assume_unique=True, return_indices=True)
+    return index_first, index_second

@@ -1,0 +1,353 @@
+"""Rig model: bodies, cameras, camera models and the ``rig.yaml`` format (DESIGN sections 1 and 5).
+
+A rig has a ``tractor`` body and optionally a ``trailer`` body. Each body frame has its origin at
+the hitch centre (x forward, y left, z up) and a signed ``axle_x``: the x coordinate of the midpoint
+of its rigid axle. Cameras follow the OpenCV convention (x right, y down, z forward) and carry
+``T_body_camera``. Two camera models are supported:
+
+* ``pinhole``: OpenCV radial-tangential distortion ``(k1, k2, p1, p2[, k3])``;
+* ``fisheye``: OpenCV equidistant model ``theta_d = theta (1 + k1 theta^2 + ... + k4 theta^8)``.
+
+``Camera.project`` maps camera-frame points to pixels, ``Camera.unproject`` maps pixels to unit
+bearing vectors in the camera frame; the two are inverse to 1e-9 over the whole image.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from ampc_vo.errors import ConfigError
+from ampc_vo.geometry import make_pose, quat_xyzw_from_rotation, rot_y, rot_z, rotation_from_quat_xyzw
+
+BODY_NAMES = ("tractor", "trailer")
+CAMERA_MODELS = ("pinhole", "fisheye")
+_NEWTON_ITERATIONS = 30
+_FISHEYE_MAX_THETA = np.deg2rad(100.0)
+
+# Body-frame axes of a camera looking straight ahead: columns are the camera x (right = -y_body),
+# y (down = -z_body) and z (forward = +x_body) axes expressed in the body frame.
+R_BODY_FORWARD_CAMERA = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def camera_rotation(yaw: float, pitch_down: float = 0.0) -> np.ndarray:
+    """``R_body_camera`` of a camera whose optical axis points at heading ``yaw`` (radians,
+    counter-clockwise from the body's x axis) tilted down by ``pitch_down`` (radians)."""
+    return rot_z(yaw) @ rot_y(pitch_down) @ R_BODY_FORWARD_CAMERA
+
+
+@dataclass(frozen=True)
+class Body:
+    """A rigid body of the vehicle. ``axle_x`` is the signed x of its rigid axle's midpoint."""
+
+    name: str
+    axle_x: float
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A calibrated camera rigidly mounted on one body."""
+
+    name: str
+    body: str
+    model: str
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    distortion: tuple[float, ...] = ()
+    T_body_camera: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    # ------------------------------------------------------------------ convenience
+    @property
+    def R_body_camera(self) -> np.ndarray:
+        return self.T_body_camera[:3, :3]
+
+    @property
+    def center(self) -> np.ndarray:
+        """Camera centre in the body frame (``t_body_camera``, the paper's ``t_AC``)."""
+        return self.T_body_camera[:3, 3]
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def _coefficients(self, count: int) -> np.ndarray:
+        coefficients = np.zeros(count)
+        values = np.asarray(self.distortion, dtype=float)[:count]
+        coefficients[: len(values)] = values
+        return coefficients
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Camera):
+            return NotImplemented
+        scalars = ("name", "body", "model", "width", "height", "fx", "fy", "cx", "cy")
+        return (
+            all(getattr(self, key) == getattr(other, key) for key in scalars)
+            and tuple(self.distortion) == tuple(other.distortion)
+            and np.array_equal(self.T_body_camera, other.T_body_camera)
+        )
+
+    __hash__ = object.__hash__
+
+    # ------------------------------------------------------------------ distortion
+    def _distort(self, normalized: np.ndarray) -> np.ndarray:
+        """Pinhole: undistorted normalised coordinates (N, 2) -> distorted (N, 2)."""
+        k1, k2, p1, p2, k3 = self._coefficients(5)
+        x, y = normalized[:, 0], normalized[:, 1]
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        return np.stack([xd, yd], axis=1)
+
+    def _undistort(self, distorted: np.ndarray) -> np.ndarray:
+        """Pinhole: invert :meth:`_distort` by vectorised Newton iterations."""
+        k1, k2, p1, p2, k3 = self._coefficients(5)
+        if not np.any([k1, k2, p1, p2, k3]):
+            return distorted.copy()
+        point = distorted.copy()
+        for _ in range(_NEWTON_ITERATIONS):
+            x, y = point[:, 0], point[:, 1]
+            r2 = x * x + y * y
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
+            residual = self._distort(point) - distorted
+            j11 = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
+            j12 = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+            j21 = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+            j22 = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+            det = j11 * j22 - j12 * j21
+            step_x = (j22 * residual[:, 0] - j12 * residual[:, 1]) / det
+            step_y = (-j21 * residual[:, 0] + j11 * residual[:, 1]) / det
+            point = point - np.stack([step_x, step_y], axis=1)
+            if np.max(np.abs(residual)) < 1e-15:
+                break
+        return point
+
+    def _fisheye_theta_d(self, theta: np.ndarray) -> np.ndarray:
+        k1, k2, k3, k4 = self._coefficients(4)
+        t2 = theta * theta
+        return theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+
+    def _fisheye_theta(self, theta_d: np.ndarray) -> np.ndarray:
+        """Invert the equidistant polynomial by Newton iterations."""
+        k1, k2, k3, k4 = self._coefficients(4)
+        theta = theta_d.copy()
+        if not np.any([k1, k2, k3, k4]):
+            return theta
+        for _ in range(_NEWTON_ITERATIONS):
+            t2 = theta * theta
+            value = self._fisheye_theta_d(theta) - theta_d
+            slope = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
+            theta = theta - value / slope
+            if np.max(np.abs(value), initial=0.0) < 1e-15:
+                break
+        return theta
+
+    # ------------------------------------------------------------------ projection
+    def project(self, points_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Project (N, 3) camera-frame points to pixels.
+
+        Returns ``(pixels (N, 2), valid (N,))``: ``valid`` is true for points in front of the
+        camera (pinhole ``z > 0``; fisheye incidence below 100 degrees) that land in the image.
+        """
+        points = np.atleast_2d(np.asarray(points_camera, dtype=float))
+        x, y, z = points[:, 0], points[:, 1], points[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            if self.model == "pinhole":
+                in_front = z > 1e-9
+                safe_z = np.where(in_front, z, 1.0)
+                distorted = self._distort(np.stack([x / safe_z, y / safe_z], axis=1))
+            else:
+                radius = np.hypot(x, y)
+                theta = np.arctan2(radius, z)
+                in_front = theta < _FISHEYE_MAX_THETA
+                theta_d = self._fisheye_theta_d(theta)
+                scale = np.where(radius > 1e-12, theta_d / np.where(radius > 1e-12, radius, 1.0), 1.0 / np.where(z > 0, z, 1.0))
+                distorted = np.stack([x * scale, y * scale], axis=1)
+        pixels = np.stack([self.fx * distorted[:, 0] + self.cx, self.fy * distorted[:, 1] + self.cy], axis=1)
+        inside = (
+            (pixels[:, 0] >= -0.5) & (pixels[:, 0] <= self.width - 0.5)
+            & (pixels[:, 1] >= -0.5) & (pixels[:, 1] <= self.height - 0.5)
+        )
+        valid = in_front & inside & np.all(np.isfinite(pixels), axis=1)
+        return pixels, valid
+
+    def unproject(self, pixels: np.ndarray) -> np.ndarray:
+        """Unit bearing vectors (N, 3) in the camera frame for (N, 2) pixel coordinates."""
+        pixels = np.atleast_2d(np.asarray(pixels, dtype=float))
+        distorted = np.stack([(pixels[:, 0] - self.cx) / self.fx, (pixels[:, 1] - self.cy) / self.fy], axis=1)
+        if self.model == "pinhole":
+            normalized = self._undistort(distorted)
+            rays = np.concatenate([normalized, np.ones((len(normalized), 1))], axis=1)
+            return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        theta_d = np.linalg.norm(distorted, axis=1)
+        theta = self._fisheye_theta(theta_d)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scale = np.where(theta_d > 1e-15, np.sin(theta) / np.where(theta_d > 1e-15, theta_d, 1.0), 1.0)
+        return np.stack([distorted[:, 0] * scale, distorted[:, 1] * scale, np.cos(theta)], axis=1)
+
+    def bearings_in_body(self, pixels: np.ndarray) -> np.ndarray:
+        """Unit bearings (N, 3) rotated into the body frame (``R_body_camera @ bearing``)."""
+        return self.unproject(pixels) @ self.R_body_camera.T
+
+
+@dataclass(frozen=True)
+class Rig:
+    """Bodies and cameras of the articulated multi-perspective camera."""
+
+    bodies: dict[str, Body]
+    cameras: tuple[Camera, ...]
+
+    @property
+    def camera_names(self) -> list[str]:
+        return [camera.name for camera in self.cameras]
+
+    @property
+    def has_trailer(self) -> bool:
+        return "trailer" in self.bodies
+
+    def camera(self, name: str) -> Camera:
+        for camera in self.cameras:
+            if camera.name == name:
+                return camera
+        raise KeyError(f"rig has no camera named {name!r}; cameras: {self.camera_names}")
+
+    def cameras_on(self, body: str) -> list[Camera]:
+        return [camera for camera in self.cameras if camera.body == body]
+
+    def axle_x(self, body: str) -> float:
+        return self.bodies[body].axle_x
+
+
+# ---------------------------------------------------------------------- rig.yaml
+def _require(mapping: Any, key: str, where: str, source: str) -> Any:
+    if not isinstance(mapping, dict) or key not in mapping or mapping[key] is None:
+        raise ConfigError(f"{source}: {where}{key}: missing")
+    return mapping[key]
+
+
+def _number(value: Any, where: str, source: str, positive: bool = False) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{source}: {where}: expected a number, got {value!r}") from None
+    if not np.isfinite(number) or (positive and number <= 0.0):
+        raise ConfigError(f"{source}: {where}: must be a {'positive ' if positive else ''}finite number, got {value!r}")
+    return number
+
+
+def _vector(value: Any, length: int, where: str, source: str) -> np.ndarray:
+    if not isinstance(value, (list, tuple)) or len(value) != length:
+        raise ConfigError(f"{source}: {where}: expected a list of {length} numbers, got {value!r}")
+    return np.array([_number(item, f"{where}[{index}]", source) for index, item in enumerate(value)])
+
+
+def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
+    """Build and validate a :class:`Rig` from the parsed ``rig.yaml`` mapping.
+
+    Every problem raises :class:`ConfigError` naming ``source`` and the field.
+    """
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{source}: expected a mapping with 'bodies' and 'cameras'")
+    raw_bodies = _require(raw, "bodies", "", source)
+    if not isinstance(raw_bodies, dict):
+        raise ConfigError(f"{source}: bodies: expected a mapping of body name to {{axle_x: ...}}")
+    bodies: dict[str, Body] = {}
+    for name, spec in raw_bodies.items():
+        if name not in BODY_NAMES:
+            raise ConfigError(f"{source}: bodies.{name}: unknown body (expected one of {BODY_NAMES})")
+        axle_x = _number(_require(spec, "axle_x", f"bodies.{name}.", source), f"bodies.{name}.axle_x", source)
+        bodies[name] = Body(name, axle_x)
+    if "tractor" not in bodies:
+        raise ConfigError(f"{source}: bodies.tractor: missing")
+    if "trailer" in bodies and bodies["trailer"].axle_x >= 0.0:
+        raise ConfigError(
+            f"{source}: bodies.trailer.axle_x: the trailer axle must lie behind the hitch (axle_x < 0), "
+            f"got {bodies['trailer'].axle_x}"
+        )
+    raw_cameras = _require(raw, "cameras", "", source)
+    if not isinstance(raw_cameras, list) or not raw_cameras:
+        raise ConfigError(f"{source}: cameras: expected a non-empty list")
+    cameras = []
+    for index, spec in enumerate(raw_cameras):
+        where = f"cameras[{index}]."
+        name = str(_require(spec, "name", where, source))
+        body = _require(spec, "body", where, source)
+        if body not in bodies:
+            raise ConfigError(f"{source}: {where}body: unknown body {body!r} (rig has {list(bodies)})")
+        model = _require(spec, "model", where, source)
+        if model not in CAMERA_MODELS:
+            raise ConfigError(f"{source}: {where}model: unknown camera model {model!r} (expected {CAMERA_MODELS})")
+        intrinsics = {key: _number(_require(spec, key, where, source), where + key, source, positive=key in ("fx", "fy", "width", "height")) for key in ("width", "height", "fx", "fy", "cx", "cy")}
+        distortion = spec.get("distortion") or []
+        if not isinstance(distortion, (list, tuple)) or len(distortion) > (5 if model == "pinhole" else 4):
+            raise ConfigError(f"{source}: {where}distortion: expected at most {5 if model == 'pinhole' else 4} coefficients for a {model} camera, got {distortion!r}")
+        distortion = tuple(_number(value, f"{where}distortion[{k}]", source) for k, value in enumerate(distortion))
+        extrinsics = _require(spec, "T_body_camera", where, source)
+        translation = _vector(_require(extrinsics, "translation", where + "T_body_camera.", source), 3, where + "T_body_camera.translation", source)
+        quaternion = _vector(_require(extrinsics, "quaternion", where + "T_body_camera.", source), 4, where + "T_body_camera.quaternion", source)
+        if abs(np.linalg.norm(quaternion) - 1.0) > 1e-6:
+            raise ConfigError(f"{source}: {where}T_body_camera.quaternion: not a unit quaternion (norm {np.linalg.norm(quaternion):.6f}); order is x y z w")
+        cameras.append(
+            Camera(
+                name=name, body=body, model=model,
+                width=int(intrinsics["width"]), height=int(intrinsics["height"]),
+                fx=intrinsics["fx"], fy=intrinsics["fy"], cx=intrinsics["cx"], cy=intrinsics["cy"],
+                distortion=distortion,
+                T_body_camera=make_pose(rotation_from_quat_xyzw(quaternion), translation),
+            )
+        )
+    names = [camera.name for camera in cameras]
+    duplicated = sorted({name for name in names if names.count(name) > 1})
+    if duplicated:
+        raise ConfigError(f"{source}: cameras: duplicate camera names {duplicated}")
+    return Rig(bodies=bodies, cameras=tuple(cameras))
+
+
+def rig_to_dict(rig: Rig) -> dict:
+    """The ``rig.yaml`` mapping of a rig (inverse of :func:`rig_from_dict`)."""
+    cameras = []
+    for camera in rig.cameras:
+        cameras.append(
+            {
+                "name": camera.name, "body": camera.body, "model": camera.model,
+                "width": camera.width, "height": camera.height,
+                "fx": float(camera.fx), "fy": float(camera.fy), "cx": float(camera.cx), "cy": float(camera.cy),
+                "distortion": [float(value) for value in camera.distortion],
+                "T_body_camera": {
+                    "translation": [float(value) for value in camera.center],
+                    "quaternion": [float(value) for value in quat_xyzw_from_rotation(camera.R_body_camera)],
+                },
+            }
+        )
+    return {"bodies": {name: {"axle_x": float(body.axle_x)} for name, body in rig.bodies.items()}, "cameras": cameras}
+
+
+def load_rig(path: str | Path) -> Rig:
+    """Read and validate ``rig.yaml``; errors name the file and the field."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: rig file not found")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        raise ConfigError(f"{path}: not valid YAML: {error}") from None
+    return rig_from_dict(raw, source=str(path))
+
+
+def save_rig(rig: Rig, path: str | Path) -> None:
+    """Write ``rig.yaml``. Values are written with full precision so that a reload is identical."""
+    Path(path).write_text(yaml.safe_dump(rig_to_dict(rig), sort_keys=False))
+
+
+def replace_camera(camera: Camera, **changes: Any) -> Camera:
+    """A copy of ``camera`` with some fields changed (dataclasses.replace for the frozen type)."""
+    return dataclasses.replace(camera, **changes)
