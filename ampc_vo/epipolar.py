@@ -12,17 +12,21 @@ seen in view j from ``c_j`` with body-frame bearing ``f'`` are coplanar:
 form. The Sampson-normalised residual divides by the norm of the gradient of ``r`` projected on
 the tangent planes of the two unit bearings; it approximates the angular error in radians.
 
-All functions broadcast over hypotheses: ``rotation`` may be (..., 3, 3) and ``translation``
-(..., 3); results are then (..., N).
+The residual functions broadcast over hypotheses: ``rotation`` may be (..., 3, 3) and
+``translation`` (..., 3); results are then (..., N). :func:`gec_sampson_jacobian` (one hypothesis)
+adds the analytic Jacobian w.r.t. the motion for the GTSAM factors; it shares
+:func:`_sampson_terms` with :func:`gec_sampson`, so the residual value has one implementation.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from ampc_vo.geometry import skew
+
 
 def _baseline(rotation: np.ndarray, translation: np.ndarray, center_i: np.ndarray, center_j: np.ndarray) -> np.ndarray:
     """``d = R c_j + t - c_i`` with shape (..., 3)."""
-    return np.einsum("...ab,b->...a", rotation, center_j) + translation - center_i
+    return rotation @ np.asarray(center_j, dtype=float) + translation - center_i
 
 
 def gec_algebraic(
@@ -40,6 +44,64 @@ def gec_algebraic(
     return np.einsum("...na,...na->...n", np.cross(bearings_i, rotated_j), baseline)
 
 
+# Levi-Civita symbol as a (9, 3) matrix: (a x b)_k = sum_ij eps_ijk a_i b_j
+_LEVI_CIVITA = np.zeros((9, 3))
+for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+    _LEVI_CIVITA[3 * _i + _j, _k] = 1.0
+    _LEVI_CIVITA[3 * _j + _i, _k] = -1.0
+
+
+def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of two (N, 3) arrays (two numpy calls, faster than ``np.cross``)."""
+    return (a[:, :, None] * b[:, None, :]).reshape(-1, 9) @ _LEVI_CIVITA
+
+
+_ONES3 = np.ones(3)
+
+
+def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot product of broadcastable (..., 3) arrays."""
+    return (a * b) @ _ONES3
+
+
+def _skew(vectors: np.ndarray) -> np.ndarray:
+    """Cross-product matrices (..., 3, 3) of (..., 3) vectors: ``_skew(v) @ w == v x w``."""
+    if vectors.ndim == 1:
+        return skew(vectors)
+    matrices = np.zeros(vectors.shape[:-1] + (3, 3))
+    matrices[..., 0, 1] = -vectors[..., 2]
+    matrices[..., 0, 2] = vectors[..., 1]
+    matrices[..., 1, 0] = vectors[..., 2]
+    matrices[..., 1, 2] = -vectors[..., 0]
+    matrices[..., 2, 0] = -vectors[..., 1]
+    matrices[..., 2, 1] = vectors[..., 0]
+    return matrices
+
+
+def _sampson_terms(
+    bearings_i: np.ndarray, rotated_j: np.ndarray, baseline: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The terms of the Sampson-normalised GEC, shared by :func:`gec_sampson` and its Jacobian.
+
+    With ``f = bearings_i`` (N, 3), ``g = rotated_j = R f'`` (..., N, 3) and the baseline
+    ``d = R c_j + t - c_i`` (..., 3) (one per hypothesis, common to the N rows), returns
+    ``(r, grad_f, grad_g, norm)``: ``r = f . (g x d)``, ``grad_f = g x d`` (gradient of r w.r.t.
+    f), ``grad_g = d x f`` (w.r.t. g) and ``norm = sqrt(|P_f grad_f|^2 + |P_g grad_g|^2)`` with
+    ``P_v = I - v v^T``.
+    """
+    skew_baseline = _skew(baseline)
+    grad_f = rotated_j @ skew_baseline  # rows S^T g = g x d
+    grad_g = -(bearings_i @ skew_baseline)  # rows S f = d x f
+    residual = _rowdot(bearings_i, grad_f)
+    tangent_f = grad_f - residual[..., None] * bearings_i
+    tangent_g = grad_g - _rowdot(grad_g, rotated_j)[..., None] * rotated_j
+    norm = np.sqrt(_rowdot(tangent_f, tangent_f) + _rowdot(tangent_g, tangent_g))
+    return residual, grad_f, grad_g, norm
+
+
+_MIN_SAMPSON_NORM = 1e-12  # below it (zero baseline) the Sampson residual is undefined: residual -> 0
+
+
 def gec_sampson(
     bearings_i: np.ndarray,
     bearings_j: np.ndarray,
@@ -54,13 +116,67 @@ def gec_sampson(
     and ``P_v = I - v v^T`` the tangent-plane projector of the unit vector v.
     """
     center_j = center_i if center_j is None else center_j
-    rotated_j = np.einsum("...ab,nb->...na", rotation, bearings_j)
-    baseline = np.broadcast_to(_baseline(rotation, translation, center_i, center_j)[..., None, :], rotated_j.shape)
-    bearings_i = np.broadcast_to(bearings_i, rotated_j.shape)
-    grad_f = np.cross(rotated_j, baseline)
-    grad_g = np.cross(baseline, bearings_i)
-    residual = np.einsum("...na,...na->...n", bearings_i, grad_f)
-    tangent_f = grad_f - np.einsum("...na,...na->...n", grad_f, bearings_i)[..., None] * bearings_i
-    tangent_g = grad_g - np.einsum("...na,...na->...n", grad_g, rotated_j)[..., None] * rotated_j
-    norm = np.sqrt(np.einsum("...na,...na->...n", tangent_f, tangent_f) + np.einsum("...na,...na->...n", tangent_g, tangent_g))
-    return residual / np.maximum(norm, 1e-12)
+    rotated_j = bearings_j @ np.swapaxes(rotation, -1, -2)  # rows R f'
+    baseline = _baseline(rotation, translation, center_i, center_j)
+    residual, _, _, norm = _sampson_terms(bearings_i, rotated_j, baseline)
+    return residual / np.maximum(norm, _MIN_SAMPSON_NORM)
+
+
+def gec_sampson_jacobian(
+    bearings_i: np.ndarray,
+    bearings_j: np.ndarray,
+    rotation: np.ndarray,
+    translation: np.ndarray,
+    center_i: np.ndarray,
+    center_j: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sampson GEC residuals (N,) of :func:`gec_sampson` and their Jacobian (N, 6) w.r.t. the motion.
+
+    One hypothesis: ``rotation`` (3, 3), ``translation`` (3,) of ``T_i_j``; unit body-frame
+    bearings (N, 3). The Jacobian is w.r.t. the right perturbation ``T_i_j Exp(xi)`` with tangent
+    order ``xi = [omega, v]`` (GTSAM ``Pose3``): ``R -> R Exp(omega)``, ``t -> t + R v``.
+
+    Derivation (``s = r / norm``, unit f and g, so ``norm^2 = |a|^2 + |b|^2 - 2 r^2`` with
+    ``a = g x d``, ``b = d x f``): ``ds = (dr - s dnorm) / norm`` and
+
+        d s / d g = (b - s (|d|^2 g - (d.g) d - 2 r b) / norm) / norm
+        d s / d d = (f x g - s (2 d - (g.d) g - (f.d) f - 2 r f x g) / norm) / norm
+
+    with ``dg = R (omega x f')`` and ``dd = R (omega x c_j) + R v``; the g-term of ``d s / d g``
+    drops out of ``f' x R^T (d s / d g) = R^T (g x d s / d g)``. Rows whose norm is below the
+    clamp of :func:`gec_sampson` (zero baseline) get a zero Jacobian.
+    """
+    center_i = np.asarray(center_i, dtype=float)
+    center_j = center_i if center_j is None else np.asarray(center_j, dtype=float)
+    rotation = np.asarray(rotation, dtype=float)
+    rotated_j = bearings_j @ np.swapaxes(rotation, -1, -2)  # as in gec_sampson: identical values
+    baseline = _baseline(rotation, translation, center_i, center_j)
+    residual, grad_f, grad_g, norm = _sampson_terms(bearings_i, rotated_j, baseline)
+    valid = norm >= _MIN_SAMPSON_NORM
+    inv_norm = np.divide(1.0, norm, out=np.zeros_like(norm), where=valid)
+    sampson = residual / np.maximum(norm, _MIN_SAMPSON_NORM)  # exactly gec_sampson's value
+    s_over_n2 = sampson * inv_norm * inv_norm
+    alpha = (1.0 + 2.0 * sampson * residual * inv_norm) * inv_norm
+    g_dot_d = rotated_j @ baseline
+    f_dot_d = bearings_i @ baseline
+    g_dot_f = _rowdot(rotated_j, bearings_i)
+    gradients = np.empty((residual.shape[0], 6))
+    # [:, :3] = g x (d s / d g) = alpha (d (g.f) - f (g.d)) + s/n^2 (g.d) (g x d)
+    gradients[:, :3] = (
+        (alpha * g_dot_f)[:, None] * baseline
+        - (alpha * g_dot_d)[:, None] * bearings_i
+        + (s_over_n2 * g_dot_d)[:, None] * grad_f
+    )
+    # [:, 3:] = d s / d d = alpha f x g - s/n^2 (2 d - (g.d) g - (f.d) f)
+    gradients[:, 3:] = (
+        alpha[:, None] * _cross_rows(bearings_i, rotated_j)
+        + (s_over_n2 * g_dot_d)[:, None] * rotated_j
+        + (s_over_n2 * f_dot_d)[:, None] * bearings_i
+        - (2.0 * s_over_n2)[:, None] * baseline
+    )
+    # chain to xi = [omega, v] (row vectors): J_omega = (g x ds/dg) R - (ds/dd) R [c_j]x, J_v = (ds/dd) R
+    chain = np.zeros((6, 6))
+    chain[:3, :3] = rotation
+    chain[3:, :3] = -rotation @ skew(center_j)
+    chain[3:, 3:] = rotation
+    return sampson, gradients @ chain

@@ -1,0 +1,275 @@
+"""Typed configuration of the odometry (``configs/vo/*.yaml``): one frozen dataclass per section.
+
+Every value is validated on load; problems (unknown keys, wrong types, out-of-range values, unknown
+mode) raise :class:`ConfigError` naming the file and the field, e.g.
+``configs/vo/x.yaml: smoother.lag_s: must be > 0, got -1``. Missing keys take the defaults below,
+so a config file only needs the values it changes. Degrees appear only in fields named ``*_deg``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ampc_vo.errors import ConfigError
+
+MODES = ("full", "tractor_only", "no_trailer_constraint", "separate")
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
+PUBLISH_POLICIES = ("latest", "lagged")
+
+
+@dataclass(frozen=True)
+class KeyframeConfig:
+    """When a frame becomes a keyframe: moved ``min_distance_m`` (estimated chord of the hitch) or
+    turned ``min_rotation_deg`` since the last keyframe, or ``max_interval_s`` elapsed (standstill
+    keyframes keep the graph alive). DESIGN 2.3: keyframes 1-3 m apart keep θ accurate."""
+
+    min_distance_m: float = 1.5
+    min_rotation_deg: float = 5.0
+    max_interval_s: float = 1.0
+    min_tracks: int = 10
+    standstill_distance_m: float = 0.05
+
+    def validate(self, where: str) -> None:
+        _positive(self.min_distance_m, where + "min_distance_m")
+        _positive(self.min_rotation_deg, where + "min_rotation_deg")
+        _positive(self.max_interval_s, where + "max_interval_s")
+        _at_least(self.min_tracks, 2, where + "min_tracks")
+        _at_least(self.standstill_distance_m, 0.0, where + "standstill_distance_m")
+
+
+@dataclass(frozen=True)
+class RansacConfig:
+    """RANSAC of the tractor 2-point and trailer 1-point solvers (DESIGN 2.1, 2.2). The Sampson
+    threshold is given in pixels and divided by each camera's focal length (it is ~radians)."""
+
+    threshold_px: float = 2.0
+    confidence: float = 0.999
+    max_iterations: int = 200
+    min_inliers: int = 8
+    seed: int = 0
+
+    def validate(self, where: str) -> None:
+        _positive(self.threshold_px, where + "threshold_px")
+        if not 0.0 < self.confidence < 1.0:
+            raise _error(where + "confidence", f"must be in (0, 1), got {self.confidence}")
+        _at_least(self.max_iterations, 1, where + "max_iterations")
+        _at_least(self.min_inliers, 2, where + "min_inliers")
+
+
+@dataclass(frozen=True)
+class SmootherConfig:
+    """Fixed-lag smoother and factor noise (DESIGN section 3)."""
+
+    lag_s: float = 3.0
+    pixel_sigma: float = 1.0
+    huber_k: float = 1.5
+    nonholonomic_sigma_m: float = 0.02
+    planar_rotation_sigma_deg: float = 0.2
+    planar_height_sigma_m: float = 0.02
+    joint_loop_rotation_sigma_deg: float = 0.1
+    joint_loop_translation_sigma_m: float = 0.01
+    prior_rotation_sigma_deg: float = 0.01
+    prior_translation_sigma_m: float = 0.001
+    hitch_prior_sigma_deg: float = 30.0
+    hitch_random_walk_deg_per_m: float = 5.0
+    hitch_hold_sigma_growth_deg_per_s: float = 1.0
+    standstill_rotation_sigma_deg: float = 0.01
+    standstill_translation_sigma_m: float = 0.002
+    weak_motion_rotation_sigma_deg: float = 5.0
+    weak_motion_translation_sigma_m: float = 1.0
+    max_pair_gap: int = 3
+    gate_px: float = 3.0
+    max_window_tracks_per_camera: int = 150
+    lm_max_iterations: int = 20
+    lm_lambda_initial: float = 1e-3
+    lm_relative_error_tol: float = 1e-5
+    marginals: bool = True
+
+    def validate(self, where: str) -> None:
+        for name in (
+            "lag_s", "pixel_sigma", "huber_k", "nonholonomic_sigma_m", "planar_rotation_sigma_deg",
+            "planar_height_sigma_m", "joint_loop_rotation_sigma_deg", "joint_loop_translation_sigma_m",
+            "prior_rotation_sigma_deg", "prior_translation_sigma_m", "hitch_prior_sigma_deg",
+            "hitch_random_walk_deg_per_m", "hitch_hold_sigma_growth_deg_per_s", "lm_lambda_initial",
+            "standstill_rotation_sigma_deg", "standstill_translation_sigma_m", "weak_motion_rotation_sigma_deg",
+            "weak_motion_translation_sigma_m", "gate_px",
+            "lm_relative_error_tol",
+        ):
+            _positive(getattr(self, name), where + name)
+        _at_least(self.lm_max_iterations, 1, where + "lm_max_iterations")
+        _at_least(self.max_window_tracks_per_camera, 2, where + "max_window_tracks_per_camera")
+        _at_least(self.max_pair_gap, 1, where + "max_pair_gap")
+
+
+@dataclass(frozen=True)
+class ScaleConfig:
+    """Aids for metric scale (DESIGN 2.3): a smooth-speed prior between consecutive keyframes
+    (``null`` disables it) and the optional wheel-speed factor (off by default)."""
+
+    smooth_speed_sigma_mps2: float | None = 0.5
+    wheel_speed: bool = False
+    wheel_speed_sigma_m: float = 0.05
+    bootstrap_pairs: int = 3
+    bootstrap_interval_s: float = 0.5
+    bootstrap_max_s: float = 30.0
+
+    def validate(self, where: str) -> None:
+        _at_least(self.bootstrap_pairs, 1, where + "bootstrap_pairs")
+        _positive(self.bootstrap_interval_s, where + "bootstrap_interval_s")
+        _positive(self.bootstrap_max_s, where + "bootstrap_max_s")
+        if self.smooth_speed_sigma_mps2 is not None:
+            _positive(self.smooth_speed_sigma_mps2, where + "smooth_speed_sigma_mps2")
+        _positive(self.wheel_speed_sigma_m, where + "wheel_speed_sigma_m")
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """What the pipeline writes and logs."""
+
+    log_level: str = "INFO"
+    progress: bool = True
+    write_timing: bool = True
+    publish: str = "latest"
+
+    def validate(self, where: str) -> None:
+        if self.publish not in PUBLISH_POLICIES:
+            raise _error(where + "publish", f"must be one of {PUBLISH_POLICIES}, got {self.publish!r}")
+        if self.log_level.upper() not in LOG_LEVELS:
+            raise _error(where + "log_level", f"must be one of {LOG_LEVELS}, got {self.log_level!r}")
+
+
+@dataclass(frozen=True)
+class VoConfig:
+    """The whole odometry configuration. ``mode``: one of :data:`MODES` (issue 5)."""
+
+    mode: str = "full"
+    keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+    ransac: RansacConfig = field(default_factory=RansacConfig)
+    smoother: SmootherConfig = field(default_factory=SmootherConfig)
+    scale: ScaleConfig = field(default_factory=ScaleConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+
+    def validate(self, where: str = "") -> None:
+        if self.mode not in MODES:
+            raise _error(where + "mode", f"unknown mode {self.mode!r} (expected one of {MODES})")
+        for section in ("keyframes", "ransac", "smoother", "scale", "output"):
+            getattr(self, section).validate(f"{where}{section}.")
+
+    def with_mode(self, mode: str) -> "VoConfig":
+        """A copy with another mode (validated)."""
+        changed = dataclasses.replace(self, mode=mode)
+        try:
+            changed.validate()
+        except _FieldError as error:
+            raise ConfigError(str(error)) from None
+        return changed
+
+
+# ---------------------------------------------------------------------- validation helpers
+class _FieldError(Exception):
+    """A problem with one field; turned into a ConfigError with the file name by the loader."""
+
+    def __init__(self, where: str, problem: str) -> None:
+        super().__init__(f"{where}: {problem}")
+        self.where = where
+        self.problem = problem
+
+
+def _error(where: str, problem: str) -> _FieldError:
+    return _FieldError(where, problem)
+
+
+def _positive(value: float, where: str) -> None:
+    if not value > 0:
+        raise _error(where, f"must be > 0, got {value}")
+
+
+def _at_least(value: float, minimum: float, where: str) -> None:
+    if not value >= minimum:
+        raise _error(where, f"must be >= {minimum}, got {value}")
+
+
+def _convert(value: Any, annotation: Any, where: str) -> Any:
+    """Check and convert one scalar against its field type (float, int, bool, str, Optional)."""
+    origin = typing.get_origin(annotation)
+    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+        arguments = [argument for argument in typing.get_args(annotation) if argument is not type(None)]
+        if value is None:
+            return None
+        return _convert(value, arguments[0], where)
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise _error(where, f"expected true or false, got {value!r}")
+        return value
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise _error(where, f"expected an integer, got {value!r}")
+        return value
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise _error(where, f"expected a number, got {value!r}")
+        return float(value)
+    if annotation is str:
+        if not isinstance(value, str):
+            raise _error(where, f"expected a string, got {value!r}")
+        return value
+    raise _error(where, f"unsupported field type {annotation!r}")  # pragma: no cover
+
+
+def _section_from_dict(cls: type, raw: Any, where: str) -> Any:
+    if raw is None:
+        return cls()
+    if not isinstance(raw, dict):
+        raise _error(where.rstrip("."), f"expected a mapping, got {raw!r}")
+    hints = typing.get_type_hints(cls)
+    names = [item.name for item in dataclasses.fields(cls)]
+    unknown = sorted(set(raw) - set(names))
+    if unknown:
+        raise _error(where + str(unknown[0]), f"unknown key (known keys: {', '.join(names)})")
+    values = {}
+    for name, value in raw.items():
+        annotation = hints[name]
+        if dataclasses.is_dataclass(annotation):
+            values[name] = _section_from_dict(annotation, value, f"{where}{name}.")
+        else:
+            values[name] = _convert(value, annotation, where + name)
+    return cls(**values)
+
+
+def config_from_dict(raw: Any, source: str = "config") -> VoConfig:
+    """Build and validate a :class:`VoConfig` from a parsed YAML mapping (``None`` = defaults)."""
+    try:
+        config = _section_from_dict(VoConfig, raw if raw is not None else {}, "")
+        config.validate()
+    except _FieldError as error:
+        raise ConfigError(f"{source}: {error.where}: {error.problem}") from None
+    return config
+
+
+def load_config(path: str | Path | None = None) -> VoConfig:
+    """Read and validate a VO config file; ``None`` gives the defaults."""
+    if path is None:
+        return VoConfig()
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: config file not found")
+    try:
+        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError as error:
+        raise ConfigError(f"{path}: not valid YAML: {error}") from None
+    return config_from_dict(raw, source=str(path))
+
+
+def config_to_dict(config: VoConfig) -> dict:
+    """The YAML mapping of a config (inverse of :func:`config_from_dict`)."""
+    return dataclasses.asdict(config)
+
+
+def save_config(config: VoConfig, path: str | Path) -> None:
+    """Write a config as YAML (e.g. beside the outputs of a run, for reproducibility)."""
+    Path(path).write_text(yaml.safe_dump(config_to_dict(config), sort_keys=False), encoding="utf-8")

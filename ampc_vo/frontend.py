@@ -1,0 +1,593 @@
+"""Image frontend: per-camera feature tracking to bearings (DESIGN section 4).
+
+Per camera, :class:`CameraTracker` runs, for every new image:
+
+1. validation of the image (dtype, shape; :class:`~ampc_vo.errors.DatasetError` on bad input) and a
+   blank-frame test (an all-black or flat image gives empty observations and a re-initialisation);
+2. KLT tracking (``cv2.calcOpticalFlowPyrLK``, image pyramids) of the previous features, with a forward-backward check: a track survives if tracking it back lands within
+   ``fb_threshold_px`` of where it started;
+3. a sudden-jump test: if most tracks fail at once the camera re-initialises with new ids;
+4. per-camera outlier rejection on **bearings** (so it works for pinhole and fisheye alike): RANSAC
+   over essential matrices from 8 bearing pairs, scored with the Sampson residual on the sphere
+   (equal to ``ampc_vo.epipolar.gec_sampson`` with the camera centre at the origin, i.e. paper
+   eq. (1) for a single central camera);
+5. grid-based replenishment: GFTT corners (``cv2.goodFeaturesToTrack`` with a mask around existing
+   features) fill the grid cells that hold fewer than their share of features; new features get new
+   ids, unique per camera and never reused;
+6. un-projection of the pixels to unit bearings with the rig's ``Camera.unproject``.
+
+:class:`MultiCameraFrontend` runs one tracker per camera and returns
+:class:`~ampc_vo.observations.FrameObservations`. :func:`match_stereo` finds cross-camera
+correspondences of an overlapping pair (KITTI left/right) for the two-camera epipolar factor.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ampc_vo.epipolar import gec_sampson
+from ampc_vo.errors import ConfigError, DatasetError
+from ampc_vo.geometry import invert_pose
+from ampc_vo.observations import CameraObservations, FrameObservations
+from ampc_vo.rig import Camera, Rig
+
+logger = logging.getLogger(__name__)
+
+_MIN_RANSAC_SAMPLE = 8
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Settings of one camera's tracker (pixels unless marked otherwise)."""
+
+    max_features: int = 300          # target number of tracked features per camera
+    grid_rows: int = 6               # replenishment grid
+    grid_cols: int = 8
+    replenish_ratio: float = 0.85    # detect new corners when fewer than this share of max_features remain
+    quality_level: float = 0.005     # GFTT quality relative to the best corner of the image
+    min_distance_px: float = 12.0    # GFTT minimum distance, also the exclusion radius around tracks
+    block_size: int = 5              # GFTT block size
+    lk_window: int = 21              # LK window side
+    lk_levels: int = 3               # pyramid levels above the base image
+    lk_iterations: int = 20
+    lk_epsilon: float = 0.03
+    fb_threshold_px: float = 1.0     # forward-backward error above which a track is dropped
+    border_px: float = 4.0           # tracks closer than this to the image border are dropped
+    ransac_threshold_px: float = 1.5 # outlier threshold (converted to radians with the focal length)
+    ransac_iterations: int = 32      # essential-matrix hypotheses per frame (8-point samples)
+    min_tracks_for_ransac: int = 16  # below this, no outlier rejection
+    jump_fraction: float = 0.25      # re-initialise when fewer than this share of tracks survive ...
+    jump_min_tracks: int = 30        # ... and at least this many tracks were there to begin with
+    min_contrast: float = 2.0        # image standard deviation (grey levels) below which a frame is blank
+    seed: int = 0                    # RANSAC sampling seed
+
+    def __post_init__(self) -> None:
+        positive = ("max_features", "grid_rows", "grid_cols", "lk_window", "ransac_iterations", "block_size")
+        for name in positive:
+            if int(getattr(self, name)) <= 0:
+                raise ConfigError(f"frontend: {name} must be positive, got {getattr(self, name)!r}")
+        if self.lk_window % 2 == 0:
+            raise ConfigError(f"frontend: lk_window must be odd, got {self.lk_window}")
+        if not 0.0 < self.quality_level < 1.0:
+            raise ConfigError(f"frontend: quality_level must be in (0, 1), got {self.quality_level}")
+        if self.fb_threshold_px <= 0.0 or self.ransac_threshold_px <= 0.0 or self.min_distance_px <= 0.0:
+            raise ConfigError("frontend: fb_threshold_px, ransac_threshold_px and min_distance_px must be positive")
+
+
+@dataclass
+class TrackingReport:
+    """What one :meth:`CameraTracker.track` call did (for logs, benchmarks and the Rerun viewer)."""
+
+    tracked: int = 0                 # tracks carried over from the previous frame
+    lost: int = 0                    # tracks failing KLT / forward-backward / border tests
+    rejected: int = 0                # tracks removed by the epipolar RANSAC
+    detected: int = 0                # new features
+    reinitialised: str = ""          # reason if the camera re-initialised this frame ("blank", "jump", ...)
+    rejected_pixels: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    timings_ms: dict[str, float] = field(default_factory=dict)  # detect, track, reject, unproject
+
+
+# ---------------------------------------------------------------------- image checks
+def as_gray_image(image: object, camera: Camera | None = None, where: str = "image") -> np.ndarray:
+    """A contiguous uint8 (H, W) view of ``image`` or :class:`DatasetError` with a clear message.
+
+    Accepts uint8 grey (H, W), (H, W, 1), BGR (H, W, 3) or BGRA (H, W, 4); uint16 is scaled to 8 bits.
+    If ``camera`` is given the size must match its calibration.
+    """
+    if not isinstance(image, np.ndarray):
+        raise DatasetError(f"{where}: expected a numpy image array, got {type(image).__name__}")
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (3, 4)):
+        raise DatasetError(f"{where}: expected an (H, W) grey or (H, W, 3|4) colour image, got shape {image.shape}")
+    if image.shape[0] < 16 or image.shape[1] < 16:
+        raise DatasetError(f"{where}: image of shape {image.shape} is too small to track features")
+    if image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        raise DatasetError(f"{where}: expected a uint8 (or uint16) image, got dtype {image.dtype}")
+    if camera is not None and (image.shape[1], image.shape[0]) != (camera.width, camera.height):
+        raise DatasetError(
+            f"{where}: image is {image.shape[1]}x{image.shape[0]} but camera {camera.name!r} is calibrated "
+            f"for {camera.width}x{camera.height}"
+        )
+    if image.ndim == 3:
+        code = cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        image = cv2.cvtColor(image, code)
+    return np.ascontiguousarray(image)
+
+
+def is_blank(gray: np.ndarray, min_contrast: float) -> bool:
+    """True for an all-black, saturated or flat image (no trackable texture)."""
+    small = gray[::4, ::4]
+    return float(small.std()) < min_contrast
+
+
+# ---------------------------------------------------------------------- KLT and grid helpers
+def track_forward_backward(
+    previous_image: np.ndarray,
+    current_image: np.ndarray,
+    previous_pixels: np.ndarray,
+    config: TrackerConfig,
+    image_size: tuple[int, int],
+) -> tuple[np.ndarray, np.ndarray]:
+    """KLT from the previous to the current image and back; returns ``(pixels (K, 2), good (K,))``.
+
+    ``good`` is false for tracks that KLT lost in either direction, whose forward-backward error
+    exceeds ``fb_threshold_px``, or that end within ``border_px`` of the image border.
+    """
+    if len(previous_pixels) == 0:
+        return np.zeros((0, 2)), np.zeros(0, bool)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, config.lk_iterations, config.lk_epsilon)
+    window = (config.lk_window, config.lk_window)
+    start = np.ascontiguousarray(previous_pixels, dtype=np.float32).reshape(-1, 1, 2)
+    forward, status_forward, _ = cv2.calcOpticalFlowPyrLK(previous_image, current_image, start, None, winSize=window, maxLevel=config.lk_levels, criteria=criteria)
+    backward, status_backward, _ = cv2.calcOpticalFlowPyrLK(
+        current_image, previous_image, forward, start.copy(), winSize=window, maxLevel=config.lk_levels,
+        criteria=criteria, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+    )
+    forward = forward.reshape(-1, 2).astype(float)
+    fb_error = np.linalg.norm(backward.reshape(-1, 2) - start.reshape(-1, 2), axis=1)
+    width, height = image_size
+    border = config.border_px
+    inside = (
+        (forward[:, 0] >= border) & (forward[:, 0] <= width - 1 - border)
+        & (forward[:, 1] >= border) & (forward[:, 1] <= height - 1 - border)
+    )
+    good = (status_forward.ravel() == 1) & (status_backward.ravel() == 1) & (fb_error < config.fb_threshold_px) & inside
+    good &= np.all(np.isfinite(forward), axis=1)
+    return forward, good
+
+
+def grid_cells(pixels: np.ndarray, image_size: tuple[int, int], rows: int, cols: int) -> np.ndarray:
+    """Flat grid-cell index (K,) of each pixel for a ``rows`` x ``cols`` grid over the image."""
+    width, height = image_size
+    column = np.clip((pixels[:, 0] * cols / width).astype(int), 0, cols - 1)
+    row = np.clip((pixels[:, 1] * rows / height).astype(int), 0, rows - 1)
+    return row * cols + column
+
+
+def select_per_cell(candidate_cells: np.ndarray, quota: np.ndarray) -> np.ndarray:
+    """Indices of candidates to keep: the first ``quota[cell]`` candidates of each cell, in input order
+    (GFTT returns corners by decreasing quality, so these are the best of each cell)."""
+    if len(candidate_cells) == 0:
+        return np.zeros(0, int)
+    order = np.argsort(candidate_cells, kind="stable")
+    sorted_cells = candidate_cells[order]
+    first_of_cell = np.searchsorted(sorted_cells, sorted_cells, side="left")
+    rank = np.arange(len(sorted_cells)) - first_of_cell
+    keep = rank < quota[sorted_cells]
+    return np.sort(order[keep])
+
+
+def detection_mask(pixels: np.ndarray, image_size: tuple[int, int], radius: float) -> np.ndarray:
+    """uint8 mask (255 = free) blocking a neighbourhood of about ``radius`` around each pixel.
+
+    Vectorised: pixels mark cells of side ``radius / 2`` on a coarse grid, dilated by one cell and
+    scaled up to the image (blocked zone between radius/2 and 1.5 radius from a feature).
+    """
+    width, height = image_size
+    cell = max(radius / 2.0, 1.0)
+    coarse_w, coarse_h = int(np.ceil(width / cell)), int(np.ceil(height / cell))
+    blocked = np.zeros((coarse_h, coarse_w), np.uint8)
+    if len(pixels):
+        ix = np.clip((pixels[:, 0] / cell).astype(int), 0, coarse_w - 1)
+        iy = np.clip((pixels[:, 1] / cell).astype(int), 0, coarse_h - 1)
+        blocked[iy, ix] = 1
+        blocked = cv2.dilate(blocked, np.ones((3, 3), np.uint8))
+    free = ((1 - blocked) * 255).astype(np.uint8)
+    return cv2.resize(free, (width, height), interpolation=cv2.INTER_NEAREST)
+
+
+# ---------------------------------------------------------------------- RANSAC on bearings
+def essential_from_bearings(bearings_i: np.ndarray, bearings_j: np.ndarray) -> np.ndarray:
+    """Linear (8-point) essential matrices ``E`` with ``f_i^T E f_j = 0``, projected onto the
+    essential manifold (singular values 1, 1, 0).
+
+    ``bearings_i``, ``bearings_j``: (..., M, 3) with M >= 8 unit bearings; returns (..., 3, 3).
+    The null vector is the eigenvector of ``A^T A`` (9 x 9) with the smallest eigenvalue.
+    """
+    design = (bearings_i[..., :, :, None] * bearings_j[..., :, None, :]).reshape(*bearings_i.shape[:-1], 9)
+    _, vectors = np.linalg.eigh(np.swapaxes(design, -1, -2) @ design)
+    essential = vectors[..., :, 0].reshape(*bearings_i.shape[:-2], 3, 3)
+    u, _, vt = np.linalg.svd(essential)
+    return u @ (np.array([1.0, 1.0, 0.0])[:, None] * vt)
+
+
+def motion_from_essential(essential: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One ``(R, t)`` per essential matrix with ``E ~ [t]x R`` (Hartley-Zisserman result 9.19).
+
+    Only one of the four decompositions is returned: the Sampson GEC residual (``gec_sampson``
+    with the camera at the origin) has the same magnitude for all four.
+    """
+    u, _, vt = np.linalg.svd(essential)
+    u = u * np.sign(np.linalg.det(u))[..., None, None]
+    vt = vt * np.sign(np.linalg.det(vt))[..., None, None]
+    w = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    return u @ w @ vt, u[..., :, 2]
+
+
+def essential_sampson(essential: np.ndarray, bearings_i: np.ndarray, bearings_j: np.ndarray) -> np.ndarray:
+    """Sampson residual on the sphere of ``f_i^T E f_j`` for (..., 3, 3) hypotheses and (N, 3) bearings.
+
+    ``r / sqrt(|P_fi E f_j|^2 + |P_fj E^T f_i|^2)``: for an essential matrix ``E = -[t]x R`` this is
+    exactly ``gec_sampson(f_i, f_j, R, t, 0)`` (paper eq. (1) for one central camera; tested), written
+    with matrix products because it scores every RANSAC hypothesis on every track each frame.
+    """
+    e_fj = bearings_j @ np.swapaxes(essential, -1, -2)   # (..., N, 3) = E f_j
+    et_fi = bearings_i @ essential                       # (..., N, 3) = E^T f_i
+    residual = np.sum(bearings_i * e_fj, axis=-1)
+    squared = np.sum(e_fj * e_fj, axis=-1) + np.sum(et_fi * et_fi, axis=-1) - 2.0 * residual * residual
+    return residual / np.sqrt(np.maximum(squared, 1e-24))
+
+
+def epipolar_inliers(
+    bearings_i: np.ndarray,
+    bearings_j: np.ndarray,
+    threshold_rad: float,
+    iterations: int,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Boolean inlier mask (N,) of a RANSAC essential-matrix fit on unit bearings.
+
+    Hypotheses come from random 8-point samples (all evaluated at once, vectorised); the score is
+    the Sampson-normalised residual of paper eq. (1) with the camera at the origin
+    (:func:`essential_sampson`, approximately radians). The best hypothesis is refitted on its
+    inliers. Works for any central camera model because it never leaves the unit sphere.
+    """
+    count = len(bearings_i)
+    if count < _MIN_RANSAC_SAMPLE + 1:
+        return np.ones(count, bool)
+    samples = np.argsort(rng.random((iterations, count)), axis=1)[:, :_MIN_RANSAC_SAMPLE]
+    essentials = essential_from_bearings(bearings_i[samples], bearings_j[samples])
+    inliers = np.abs(essential_sampson(essentials, bearings_i, bearings_j)) < threshold_rad  # (H, N)
+    mask = inliers[int(np.argmax(inliers.sum(axis=1)))]
+    if mask.sum() >= _MIN_RANSAC_SAMPLE:
+        refined = essential_from_bearings(bearings_i[mask], bearings_j[mask])
+        refined_mask = np.abs(essential_sampson(refined, bearings_i, bearings_j)) < threshold_rad
+        if refined_mask.sum() >= mask.sum():
+            mask = refined_mask
+    return mask
+
+
+# ---------------------------------------------------------------------- one camera
+class CameraTracker:
+    """KLT tracker of one camera: holds its last image, features and id counter (no globals)."""
+
+    def __init__(self, camera: Camera, config: TrackerConfig | None = None) -> None:
+        self.camera = camera
+        self.config = config or TrackerConfig()
+        self._rng = np.random.default_rng(self.config.seed)
+        self._next_id = 0
+        self._pixels = np.zeros((0, 2))
+        self._ids = np.zeros(0, np.int64)
+        self.last_report = TrackingReport()
+        self.previous_image: np.ndarray | None = None  # grey image of the last tracked frame (stereo, viz)
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        return (self.camera.width, self.camera.height)
+
+    @property
+    def next_id(self) -> int:
+        """The id the next new feature will get (ids are never reused)."""
+        return self._next_id
+
+    def reset(self, reason: str = "") -> None:
+        """Forget all tracks (ids already issued stay retired)."""
+        if reason:
+            logger.warning("camera %s: re-initialising tracking (%s)", self.camera.name, reason)
+        self.previous_image = None
+        self._pixels = np.zeros((0, 2))
+        self._ids = np.zeros(0, np.int64)
+
+    def _new_ids(self, count: int) -> np.ndarray:
+        ids = np.arange(self._next_id, self._next_id + count, dtype=np.int64)
+        self._next_id += count
+        return ids
+
+    def track(self, image: np.ndarray | None) -> CameraObservations:
+        """Track features into ``image`` and return this frame's observations.
+
+        ``None`` (a missing image) or a blank image gives empty observations, a warning and a
+        re-initialisation at the next good image. Raises :class:`DatasetError` only for images of
+        the wrong type or size.
+        """
+        config = self.config
+        report = TrackingReport(timings_ms={"detect": 0.0, "track": 0.0, "reject": 0.0, "unproject": 0.0})
+        self.last_report = report
+        if image is None:
+            report.reinitialised = "missing image"
+            self.reset(report.reinitialised)
+            return CameraObservations.empty(self.camera.name)
+        gray = as_gray_image(image, self.camera, where=f"camera {self.camera.name}")
+        if is_blank(gray, config.min_contrast):
+            report.reinitialised = "blank image"
+            self.reset(f"blank image (contrast below {config.min_contrast})")
+            self.previous_image = gray
+            return CameraObservations.empty(self.camera.name)
+
+        clock = time.perf_counter()
+        pixels, ids = np.zeros((0, 2)), np.zeros(0, np.int64)
+        if self.previous_image is not None and len(self._pixels):
+            tracked, good = track_forward_backward(self.previous_image, gray, self._pixels, config, self.image_size)
+            report.tracked, report.lost = int(good.sum()), int((~good).sum())
+            if len(self._pixels) >= config.jump_min_tracks and good.sum() < config.jump_fraction * len(self._pixels):
+                report.reinitialised = "jump"
+                self.reset(f"sudden jump: only {int(good.sum())} of {len(self._pixels)} tracks survived")
+                report.tracked = 0
+            else:
+                pixels, ids = tracked[good], self._ids[good]
+                previous_pixels = self._pixels[good]
+        report.timings_ms["track"] = (time.perf_counter() - clock) * 1e3
+
+        clock = time.perf_counter()
+        bearings = self.camera.unproject(pixels) if len(pixels) else np.zeros((0, 3))
+        report.timings_ms["unproject"] += (time.perf_counter() - clock) * 1e3
+
+        clock = time.perf_counter()
+        if len(pixels) >= config.min_tracks_for_ransac:
+            previous_bearings = self.camera.unproject(previous_pixels)
+            threshold = config.ransac_threshold_px / max(self.camera.fx, self.camera.fy)
+            inliers = epipolar_inliers(previous_bearings, bearings, threshold, config.ransac_iterations, self._rng)
+            report.rejected = int((~inliers).sum())
+            report.rejected_pixels = pixels[~inliers]
+            pixels, ids, bearings = pixels[inliers], ids[inliers], bearings[inliers]
+        report.timings_ms["reject"] = (time.perf_counter() - clock) * 1e3
+
+        clock = time.perf_counter()
+        if len(pixels) < config.replenish_ratio * config.max_features:
+            new_pixels = self._detect(gray, pixels)
+            report.detected = len(new_pixels)
+            if len(new_pixels):
+                pixels = np.concatenate([pixels, new_pixels])
+                ids = np.concatenate([ids, self._new_ids(len(new_pixels))])
+                report.timings_ms["detect"] = (time.perf_counter() - clock) * 1e3
+                clock = time.perf_counter()
+                bearings = np.concatenate([bearings, self.camera.unproject(new_pixels)])
+                report.timings_ms["unproject"] += (time.perf_counter() - clock) * 1e3
+            else:
+                report.timings_ms["detect"] = (time.perf_counter() - clock) * 1e3
+        if len(pixels) == 0:
+            logger.warning("camera %s: no features found in frame", self.camera.name)
+
+        self._pixels, self._ids = pixels, ids
+        self.previous_image = gray
+        return CameraObservations(self.camera.name, ids.copy(), pixels.copy(), bearings)
+
+    def _detect(self, gray: np.ndarray, existing: np.ndarray) -> np.ndarray:
+        """GFTT corners that fill under-populated grid cells (grid-based replenishment)."""
+        config = self.config
+        cells = config.grid_rows * config.grid_cols
+        per_cell = int(np.ceil(config.max_features / cells))
+        occupied = np.bincount(grid_cells(existing, self.image_size, config.grid_rows, config.grid_cols), minlength=cells) if len(existing) else np.zeros(cells, int)
+        quota = np.maximum(per_cell - occupied, 0)
+        budget = config.max_features - len(existing)
+        if budget <= 0 or quota.sum() == 0:
+            return np.zeros((0, 2))
+        mask = detection_mask(existing, self.image_size, config.min_distance_px)
+        corners = cv2.goodFeaturesToTrack(
+            gray, maxCorners=int(min(4 * quota.sum(), 4 * config.max_features)), qualityLevel=config.quality_level,
+            minDistance=config.min_distance_px, mask=mask, blockSize=config.block_size,
+        )
+        if corners is None:
+            return np.zeros((0, 2))
+        corners = corners.reshape(-1, 2).astype(float)
+        border = config.border_px
+        width, height = self.image_size
+        inside = (corners[:, 0] >= border) & (corners[:, 0] <= width - 1 - border) & (corners[:, 1] >= border) & (corners[:, 1] <= height - 1 - border)
+        corners = corners[inside]
+        keep = select_per_cell(grid_cells(corners, self.image_size, config.grid_rows, config.grid_cols), quota)
+        return corners[keep][:budget]
+
+
+# ---------------------------------------------------------------------- all cameras
+@dataclass
+class FrontendResult:
+    """Observations of one frame plus per-camera reports and stereo matches (if configured)."""
+
+    observations: FrameObservations
+    reports: dict[str, TrackingReport]
+    stereo: dict[tuple[str, str], "StereoMatches"] = field(default_factory=dict)
+
+
+class MultiCameraFrontend:
+    """One :class:`CameraTracker` per rig camera; images in, :class:`FrameObservations` out.
+
+    ``stereo_pairs``: (first, second) camera names of overlapping views (KITTI: ("left", "right"))
+    matched every frame with :func:`match_stereo`. ``threads`` > 1 tracks cameras in parallel
+    (OpenCV releases the GIL).
+    """
+
+    def __init__(
+        self,
+        rig: Rig,
+        config: TrackerConfig | None = None,
+        camera_configs: dict[str, TrackerConfig] | None = None,
+        stereo_pairs: tuple[tuple[str, str], ...] = (),
+        stereo_config: "StereoConfig | None" = None,
+        threads: int = 1,
+    ) -> None:
+        camera_configs = camera_configs or {}
+        unknown = set(camera_configs) - set(rig.camera_names)
+        if unknown:
+            raise ConfigError(f"frontend: configs for unknown cameras {sorted(unknown)}; rig has {rig.camera_names}")
+        for pair in stereo_pairs:
+            for name in pair:
+                if name not in rig.camera_names:
+                    raise ConfigError(f"frontend: stereo pair {pair} names unknown camera {name!r}")
+        self.rig = rig
+        self.trackers = {camera.name: CameraTracker(camera, camera_configs.get(camera.name, config)) for camera in rig.cameras}
+        self.stereo_pairs = tuple(tuple(pair) for pair in stereo_pairs)
+        self.stereo_config = stereo_config or StereoConfig()
+        self._executor = ThreadPoolExecutor(max_workers=threads) if threads > 1 else None
+
+    def close(self) -> None:
+        if self._executor is not None:
+            self._executor.shutdown()
+            self._executor = None
+
+    def __enter__(self) -> "MultiCameraFrontend":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def process_with_details(self, frame: int, timestamp: float, images: dict[str, np.ndarray | None]) -> FrontendResult:
+        """Track every camera (a missing entry counts as a missing image) and match stereo pairs."""
+        unknown = set(images) - set(self.trackers)
+        if unknown:
+            raise DatasetError(f"frame {frame}: images for unknown cameras {sorted(unknown)}")
+        names = list(self.trackers)
+        if self._executor is not None:
+            results = list(self._executor.map(lambda name: self.trackers[name].track(images.get(name)), names))
+        else:
+            results = [self.trackers[name].track(images.get(name)) for name in names]
+        cameras = dict(zip(names, results))
+        stereo = {}
+        for first, second in self.stereo_pairs:
+            tracker_first, tracker_second = self.trackers[first], self.trackers[second]
+            if len(cameras[first]) == 0 or tracker_second.previous_image is None or tracker_second.last_report.reinitialised:
+                stereo[(first, second)] = StereoMatches.empty(second)
+                continue
+            stereo[(first, second)] = match_stereo(
+                tracker_first.previous_image, tracker_second.previous_image, cameras[first],
+                tracker_first.camera, tracker_second.camera, self.stereo_config,
+            )
+        reports = {name: self.trackers[name].last_report for name in names}
+        return FrontendResult(FrameObservations(frame, float(timestamp), cameras), reports, stereo)
+
+    def process(self, frame: int, timestamp: float, images: dict[str, np.ndarray | None]) -> FrameObservations:
+        """:meth:`process_with_details` without the details."""
+        return self.process_with_details(frame, timestamp, images).observations
+
+
+# ---------------------------------------------------------------------- stereo (cross-camera)
+@dataclass(frozen=True)
+class StereoConfig:
+    """Settings of :func:`match_stereo` (KLT from the first to the second camera of a pair)."""
+
+    lk_window: int = 21
+    lk_levels: int = 4
+    lk_iterations: int = 30
+    lk_epsilon: float = 0.01
+    fb_threshold_px: float = 1.0
+    epipolar_threshold_px: float = 0.7   # Sampson GEC error of the known pair, pixels (rectified: row error / sqrt 2)
+    min_depth_m: float = 1.0             # points closer than this (or behind) are rejected
+    max_depth_m: float = 200.0
+
+
+@dataclass(frozen=True)
+class StereoMatches:
+    """Cross-camera correspondences of one frame.
+
+    ``observations`` is a :class:`CameraObservations` of the **second** camera whose ``track_ids``
+    are the first camera's ids: ``match_tracks(first_obs_at_i, stereo_at_j.observations)`` pairs a
+    first-camera bearing at frame i with a second-camera bearing at frame j for the two-camera
+    GEC (metric scale). ``depths`` (K,) are triangulated depths along the first camera's ray.
+    """
+
+    observations: CameraObservations
+    first_pixels: np.ndarray
+    depths: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.observations)
+
+    @staticmethod
+    def empty(camera: str) -> "StereoMatches":
+        return StereoMatches(CameraObservations.empty(camera), np.zeros((0, 2)), np.zeros(0))
+
+
+def triangulate_midpoint(bearings_first: np.ndarray, bearings_second: np.ndarray, T_first_second: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Midpoint triangulation of rays (vectorised); returns ``(points (N, 3) in the first camera
+    frame, depths along the first rays (N,))``. Parallel rays get depth ``inf``."""
+    rotation, baseline = T_first_second[:3, :3], T_first_second[:3, 3]
+    d1 = bearings_first
+    d2 = bearings_second @ rotation.T
+    # minimise |s d1 - (baseline + u d2)|: normal equations of the 2x2 system
+    a = np.einsum("na,na->n", d1, d1)
+    b = np.einsum("na,na->n", d1, d2)
+    c = np.einsum("na,na->n", d2, d2)
+    e = d1 @ baseline
+    f = d2 @ baseline
+    det = a * c - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(np.abs(det) > 1e-12, (e * c - b * f) / det, np.inf)
+        u = np.where(np.abs(det) > 1e-12, (b * e - a * f) / det, np.inf)
+        points = 0.5 * (s[:, None] * d1 + baseline + u[:, None] * d2)
+    depth = np.where(u > 0, s, -np.abs(s))  # both rays must point at the point
+    return points, depth
+
+
+def match_stereo(
+    first_image: np.ndarray,
+    second_image: np.ndarray,
+    first: CameraObservations,
+    first_camera: Camera,
+    second_camera: Camera,
+    config: StereoConfig | None = None,
+) -> StereoMatches:
+    """Find the first camera's features in the second (overlapping) camera's image of the same frame.
+
+    KLT from the first to the second image (started at the same pixel, forward-backward checked),
+    then two geometric tests with the known extrinsics ``T_first_second``: the Sampson GEC error
+    (``gec_sampson`` with R, t of the camera pair, paper eq. (1)) below ``epipolar_threshold_px``
+    (for a rectified pair this is the same-row test) and a triangulated depth within
+    ``[min_depth_m, max_depth_m]`` (cheirality). Images are uint8 grey of the same frame.
+    """
+    config = config or StereoConfig()
+    if len(first) == 0:
+        return StereoMatches.empty(second_camera.name)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, config.lk_iterations, config.lk_epsilon)
+    window = (config.lk_window, config.lk_window)
+    start = np.ascontiguousarray(first.pixels, dtype=np.float32).reshape(-1, 1, 2)
+    forward, status_forward, _ = cv2.calcOpticalFlowPyrLK(first_image, second_image, start, None, winSize=window, maxLevel=config.lk_levels, criteria=criteria)
+    backward, status_backward, _ = cv2.calcOpticalFlowPyrLK(
+        second_image, first_image, forward, start.copy(), winSize=window, maxLevel=config.lk_levels,
+        criteria=criteria, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+    )
+    second_pixels = forward.reshape(-1, 2).astype(float)
+    fb_error = np.linalg.norm(backward.reshape(-1, 2) - start.reshape(-1, 2), axis=1)
+    inside = (
+        (second_pixels[:, 0] >= 0) & (second_pixels[:, 0] <= second_camera.width - 1)
+        & (second_pixels[:, 1] >= 0) & (second_pixels[:, 1] <= second_camera.height - 1)
+    )
+    good = (status_forward.ravel() == 1) & (status_backward.ravel() == 1) & (fb_error < config.fb_threshold_px) & inside
+    if not good.any():
+        return StereoMatches.empty(second_camera.name)
+    second_bearings = second_camera.unproject(second_pixels[good])
+    first_bearings = first.bearings[good]
+    T_first_second = invert_pose(first_camera.T_body_camera) @ second_camera.T_body_camera
+    focal = max(first_camera.fx, first_camera.fy)
+    epipolar_error = np.abs(gec_sampson(first_bearings, second_bearings, T_first_second[:3, :3], T_first_second[:3, 3], np.zeros(3)))
+    _, depth = triangulate_midpoint(first_bearings, second_bearings, T_first_second)
+    accepted = (epipolar_error < config.epipolar_threshold_px / focal) & (depth >= config.min_depth_m) & (depth <= config.max_depth_m)
+    index = np.flatnonzero(good)[accepted]
+    observations = CameraObservations(second_camera.name, first.track_ids[index].copy(), second_pixels[index], second_bearings[accepted])
+    return StereoMatches(observations, first.pixels[index].copy(), depth[accepted])

@@ -1,0 +1,178 @@
+"""Simulated bearing measurements and their file format ``measurements.npz`` (DESIGN section 5).
+
+One row per (frame, camera, track). Arrays (M rows, sorted by frame then camera):
+
+    frame (M,) int64          frame index (row of frames.csv / trajectory)
+    camera_index (M,) int64   index into camera_names
+    track_id (M,) int64       unique within a camera; constant while a landmark stays tracked
+    landmark_id (M,) int64    index into landmarks (ground truth; also set for outliers)
+    pixel (M, 2) float64      measured pixel (noise added; a uniform random pixel for outliers)
+    pixel_clean (M, 2)        noise-free projection of the landmark (ground truth)
+    is_outlier (M,) bool
+    camera_names (C,) str
+    landmarks (L, 3) float64  world points (ground truth)
+    timestamps (F,) float64   seconds, one per frame
+
+``Measurements.observations(frame)`` turns the rows of one frame into the backend's currency
+:class:`ampc_vo.observations.FrameObservations` (bearings = ``camera.unproject(pixel)``).
+"""
+from __future__ import annotations
+
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ampc_vo.errors import DatasetError
+from ampc_vo.observations import CameraObservations, FrameObservations
+from ampc_vo.rig import Rig
+
+MEASUREMENTS_FILE = "measurements.npz"
+_ARRAYS = ("frame", "camera_index", "track_id", "landmark_id", "pixel", "pixel_clean", "is_outlier", "camera_names", "landmarks", "timestamps")
+
+
+@dataclass(frozen=True, eq=False)
+class Measurements:
+    """Simulated feature tracks of all cameras (module docstring). ``rig`` (not saved) is needed
+    to un-project pixels into bearings; pass it here or to :meth:`observations`."""
+
+    frame: np.ndarray
+    camera_index: np.ndarray
+    track_id: np.ndarray
+    landmark_id: np.ndarray
+    pixel: np.ndarray
+    pixel_clean: np.ndarray
+    is_outlier: np.ndarray
+    camera_names: tuple[str, ...]
+    landmarks: np.ndarray
+    timestamps: np.ndarray
+    rig: Rig | None = None
+
+    def __post_init__(self) -> None:
+        order = np.lexsort((self.camera_index, self.frame))
+        if np.any(order != np.arange(len(order))):
+            for name in ("frame", "camera_index", "track_id", "landmark_id", "pixel", "pixel_clean", "is_outlier"):
+                object.__setattr__(self, name, getattr(self, name)[order])
+        bounds = np.searchsorted(self.frame, np.arange(self.frame_count + 1))
+        object.__setattr__(self, "_bounds", bounds)
+
+    @property
+    def frame_count(self) -> int:
+        return int(self.timestamps.shape[0])
+
+    def __len__(self) -> int:
+        return int(self.frame.shape[0])
+
+    def rows(self, frame: int, camera: str | None = None) -> np.ndarray:
+        """Row indices of one frame (and optionally one camera)."""
+        if not 0 <= frame < self.frame_count:
+            raise IndexError(f"frame {frame} out of range [0, {self.frame_count})")
+        start, stop = self._bounds[frame], self._bounds[frame + 1]  # type: ignore[attr-defined]
+        rows = np.arange(start, stop)
+        if camera is not None:
+            rows = rows[self.camera_index[rows] == self.camera_names.index(camera)]
+        return rows
+
+    def observations(self, frame: int, rig: Rig | None = None) -> FrameObservations:
+        """The measured tracks of ``frame`` as :class:`FrameObservations` (bearings from noisy pixels)."""
+        rig = rig if rig is not None else self.rig
+        if rig is None:
+            raise ValueError("Measurements.observations needs a rig to un-project pixels (pass rig=...)")
+        rows = self.rows(frame)
+        cameras: dict[str, CameraObservations] = {}
+        for index, name in enumerate(self.camera_names):
+            selected = rows[self.camera_index[rows] == index]
+            pixels = self.pixel[selected]
+            bearings = rig.camera(name).unproject(pixels) if len(selected) else np.zeros((0, 3))
+            cameras[name] = CameraObservations(name, self.track_id[selected].copy(), pixels.copy(), bearings)
+        return FrameObservations(frame=int(frame), timestamp=float(self.timestamps[frame]), cameras=cameras)
+
+    def frames(self, rig: Rig | None = None) -> Iterator[FrameObservations]:
+        """All frames in order."""
+        for frame in range(self.frame_count):
+            yield self.observations(frame, rig)
+
+    def tracks_per_camera(self) -> dict[str, float]:
+        """Mean number of observations per frame for each camera (a summary for reports)."""
+        counts = np.bincount(self.camera_index, minlength=len(self.camera_names)) / max(self.frame_count, 1)
+        return {name: float(count) for name, count in zip(self.camera_names, counts)}
+
+
+def save_measurements(measurements: Measurements, path: str | Path) -> None:
+    """Write ``measurements.npz`` (compressed)."""
+    np.savez_compressed(
+        Path(path),
+        frame=measurements.frame.astype(np.int64),
+        camera_index=measurements.camera_index.astype(np.int64),
+        track_id=measurements.track_id.astype(np.int64),
+        landmark_id=measurements.landmark_id.astype(np.int64),
+        pixel=measurements.pixel.astype(np.float64),
+        pixel_clean=measurements.pixel_clean.astype(np.float64),
+        is_outlier=measurements.is_outlier.astype(bool),
+        camera_names=np.asarray(measurements.camera_names, dtype=str),
+        landmarks=measurements.landmarks.astype(np.float64),
+        timestamps=measurements.timestamps.astype(np.float64),
+    )
+
+
+def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
+    """Read ``measurements.npz``; a missing, corrupt or inconsistent file raises :class:`DatasetError`.
+
+    ``pixel_clean`` and ``timestamps`` are optional in the file (defaults: ``pixel`` and frame indices).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: measurements file not found")
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            data = {name: archive[name] for name in archive.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
+        raise DatasetError(f"{path}: not a readable .npz file ({error})") from None
+    required = ("frame", "camera_index", "track_id", "landmark_id", "pixel", "is_outlier", "camera_names", "landmarks")
+    missing = [name for name in required if name not in data]
+    if missing:
+        raise DatasetError(f"{path}: missing array(s) {missing}")
+    rows = data["frame"].shape[0]
+    for name in ("camera_index", "track_id", "landmark_id", "pixel", "is_outlier") + (("pixel_clean",) if "pixel_clean" in data else ()):
+        if data[name].shape[0] != rows:
+            raise DatasetError(f"{path}: array {name!r} has {data[name].shape[0]} rows, 'frame' has {rows}")
+    for name in ("pixel",) + (("pixel_clean",) if "pixel_clean" in data else ()):
+        if data[name].ndim != 2 or data[name].shape[1] != 2:
+            raise DatasetError(f"{path}: array {name!r} must have shape (M, 2), got {data[name].shape}")
+    landmarks = data["landmarks"]
+    if landmarks.ndim != 2 or landmarks.shape[1] != 3:
+        raise DatasetError(f"{path}: array 'landmarks' must have shape (L, 3), got {landmarks.shape}")
+    camera_names = tuple(str(name) for name in data["camera_names"])
+    if rows and (data["camera_index"].min() < 0 or data["camera_index"].max() >= len(camera_names)):
+        raise DatasetError(f"{path}: camera_index out of range for {len(camera_names)} cameras")
+    if rows and (data["landmark_id"].min() < 0 or data["landmark_id"].max() >= len(landmarks)):
+        raise DatasetError(f"{path}: landmark_id out of range for {len(landmarks)} landmarks")
+    if rows and data["frame"].min() < 0:
+        raise DatasetError(f"{path}: negative frame index")
+    if "timestamps" in data:
+        timestamps = data["timestamps"].astype(float)
+        if rows and data["frame"].max() >= len(timestamps):
+            raise DatasetError(f"{path}: frame index {data['frame'].max()} beyond {len(timestamps)} timestamps")
+    else:
+        timestamps = np.arange(int(data["frame"].max()) + 1 if rows else 0, dtype=float)
+    if not np.all(np.isfinite(data["pixel"])):
+        raise DatasetError(f"{path}: array 'pixel' contains NaN or infinite values")
+    if rig is not None:
+        unknown = [name for name in camera_names if name not in rig.camera_names]
+        if unknown:
+            raise DatasetError(f"{path}: camera(s) {unknown} not in the rig (rig cameras: {rig.camera_names})")
+    return Measurements(
+        frame=data["frame"].astype(np.int64),
+        camera_index=data["camera_index"].astype(np.int64),
+        track_id=data["track_id"].astype(np.int64),
+        landmark_id=data["landmark_id"].astype(np.int64),
+        pixel=data["pixel"].astype(float),
+        pixel_clean=data.get("pixel_clean", data["pixel"]).astype(float),
+        is_outlier=data["is_outlier"].astype(bool),
+        camera_names=camera_names,
+        landmarks=landmarks.astype(float),
+        timestamps=timestamps,
+        rig=rig,
+    )

@@ -1,0 +1,192 @@
+"""Initial relative motion between two keyframes from the minimal-solver RANSAC estimators.
+
+Per keyframe pair (DESIGN section 4): tractor RANSAC with the 2-point Ackermann solver (DESIGN
+2.1) on the tractor cameras' shared tracks, then the trailer RANSAC with the 1-point solver
+(DESIGN 2.2) given the tractor motion. In mode ``separate`` the trailer's own motion comes from
+the same 2-point solver applied to the trailer cameras and the trailer axle (a trailer is a rigid
+body with one rigid axle as well). Solver statuses are mapped to :class:`MotionStatus`; when a
+motion cannot be estimated the caller's constant-velocity prediction is used.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from ampc_vo.config import VoConfig
+from ampc_vo.geometry import make_pose, rot_z
+from ampc_vo.observations import FrameObservations, match_tracks
+from ampc_vo.rig import Camera, Rig
+from ampc_vo.smoother import MotionInit, MotionStatus
+from ampc_vo.solvers import RansacConfig as SolverRansacConfig
+from ampc_vo.solvers import SolverStatus, TractorMotionEstimate, estimate_hitch_angles, estimate_tractor_motion
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class CameraPairs:
+    """Shared tracks of one camera between views i and j: camera-frame and body-frame bearings."""
+
+    camera: Camera
+    track_ids: np.ndarray
+    bearings_i: np.ndarray
+    bearings_j: np.ndarray
+    body_bearings_i: np.ndarray
+    body_bearings_j: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.track_ids.shape[0])
+
+    def as_group(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(body_bearings_i, body_bearings_j, center)``, the group the solvers take."""
+        return self.body_bearings_i, self.body_bearings_j, self.camera.center
+
+
+def camera_pairs(rig: Rig, body: str, first: FrameObservations, second: FrameObservations) -> list[CameraPairs]:
+    """Shared tracks of every camera on ``body`` between two frames (cameras without any are skipped)."""
+    pairs = []
+    for camera in rig.cameras_on(body):
+        observations_i = first.cameras.get(camera.name)
+        observations_j = second.cameras.get(camera.name)
+        if observations_i is None or observations_j is None or len(observations_i) == 0 or len(observations_j) == 0:
+            continue
+        index_i, index_j = match_tracks(observations_i, observations_j)
+        if index_i.size == 0:
+            continue
+        bearings_i, bearings_j = observations_i.bearings[index_i], observations_j.bearings[index_j]
+        R_body_camera = camera.R_body_camera
+        pairs.append(CameraPairs(camera, observations_i.track_ids[index_i], bearings_i, bearings_j, bearings_i @ R_body_camera.T, bearings_j @ R_body_camera.T))
+    return pairs
+
+
+def _solver_config(config: VoConfig, cameras: list[Camera]) -> SolverRansacConfig:
+    """The solvers' RANSAC options from the VO config: the pixel threshold over the mean focal."""
+    focal = float(np.mean([0.5 * (camera.fx + camera.fy) for camera in cameras])) if cameras else 500.0
+    return SolverRansacConfig(
+        sampson_threshold=config.ransac.threshold_px / focal,
+        confidence=config.ransac.confidence,
+        max_iterations=config.ransac.max_iterations,
+        min_inliers=config.ransac.min_inliers,
+        min_chord=config.keyframes.standstill_distance_m,
+        seed=config.ransac.seed,
+    )
+
+
+def _status(solver_status: SolverStatus) -> MotionStatus:
+    if solver_status is SolverStatus.OK:
+        return MotionStatus.OK
+    if solver_status is SolverStatus.SCALE_UNOBSERVABLE:
+        return MotionStatus.SCALE_UNOBSERVABLE
+    if solver_status is SolverStatus.STANDSTILL:
+        return MotionStatus.STANDSTILL
+    return MotionStatus.TOO_FEW_TRACKS
+
+
+def _outlier_tracks(pairs: list[CameraPairs], inlier_masks: list[np.ndarray]) -> dict[str, np.ndarray]:
+    """Track ids RANSAC rejected, per camera (excluded from the smoother's factors)."""
+    if len(inlier_masks) != len(pairs):
+        return {}
+    return {pair.camera.name: pair.track_ids[~np.asarray(mask, dtype=bool)] for pair, mask in zip(pairs, inlier_masks) if len(mask) == len(pair)}
+
+
+def straight_motion(chord: float) -> np.ndarray:
+    """A straight motion of ``chord`` metres along x (a prediction when nothing better is known)."""
+    return make_pose(np.eye(3), np.array([chord, 0.0, 0.0]))
+
+
+@dataclass(frozen=True)
+class TractorMotion:
+    """Tractor motion of a frame relative to the last keyframe: what keyframe selection needs."""
+
+    T_i_j: np.ndarray
+    status: MotionStatus
+    estimate: TractorMotionEstimate
+    shared_tracks: int
+
+    @property
+    def chord(self) -> float:
+        return float(np.linalg.norm(self.T_i_j[:2, 3]))
+
+    @property
+    def yaw_change(self) -> float:
+        return float(np.arctan2(self.T_i_j[1, 0], self.T_i_j[0, 0]))
+
+
+class MotionInitializer:
+    """Runs the RANSAC estimators between a keyframe and a later frame (module docstring)."""
+
+    def __init__(self, rig: Rig, config: VoConfig) -> None:
+        self.rig = rig
+        self.config = config
+        self._tractor_config = _solver_config(config, rig.cameras_on("tractor"))
+        self._trailer_config = _solver_config(config, rig.cameras_on("trailer")) if rig.has_trailer else None
+        self._rng = np.random.default_rng(config.ransac.seed)
+        self.use_trailer = rig.has_trailer and config.mode != "tractor_only"
+
+    def tractor(self, first: FrameObservations, second: FrameObservations, predicted: np.ndarray) -> TractorMotion:
+        """Tractor motion ``T_first_second``; ``predicted`` (constant velocity) fills what is unknown:
+        the chord in straight driving and everything when there are too few tracks."""
+        pairs = camera_pairs(self.rig, "tractor", first, second)
+        shared = sum(len(pair) for pair in pairs)
+        predicted_chord = float(np.linalg.norm(predicted[:2, 3]))
+        estimate = estimate_tractor_motion(pairs, self.rig.axle_x("tractor"), self._tractor_config, chord_prior=max(predicted_chord, 1e-3), rng=self._rng)
+        status = _status(estimate.status)
+        if shared < self.config.keyframes.min_tracks:
+            status = MotionStatus.TOO_FEW_TRACKS
+        if status is MotionStatus.STANDSTILL:
+            T_i_j = np.eye(4)
+        elif status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and estimate.T_i_j is not None:
+            T_i_j = estimate.T_i_j
+        else:
+            status = MotionStatus.TOO_FEW_TRACKS
+            T_i_j = predicted
+        return TractorMotion(T_i_j, status, estimate, shared)
+
+    def keyframe(self, first: FrameObservations, second: FrameObservations, tractor: TractorMotion,
+                 hitch_prior: float | None, predicted_trailer: np.ndarray | None = None) -> MotionInit:
+        """The :class:`MotionInit` of a new keyframe given its tractor motion (see :meth:`tractor`)."""
+        outliers = _outlier_tracks(camera_pairs(self.rig, "tractor", first, second), tractor.estimate.inlier_masks)
+        if not self.use_trailer:
+            return MotionInit(tractor.T_i_j, tractor.status, outlier_tracks=outliers)
+        hitch_prev = hitch = None
+        trailer_status = MotionStatus.TOO_FEW_TRACKS
+        trailer_pairs = camera_pairs(self.rig, "trailer", first, second)
+        trailer_axle_x = self.rig.axle_x("trailer")
+        if tractor.status is MotionStatus.STANDSTILL:
+            trailer_status = MotionStatus.STANDSTILL
+        elif tractor.status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and sum(len(p) for p in trailer_pairs) >= self.config.keyframes.min_tracks:
+            estimate = estimate_hitch_angles(
+                trailer_pairs, (tractor.yaw_change, tractor.T_i_j[:3, 3]), trailer_axle_x, self._trailer_config,
+                prior_hitch_angle=hitch_prior, rng=self._rng,
+            )
+            if estimate.ok:
+                hitch_prev, hitch, trailer_status = estimate.hitch_angle_i, estimate.hitch_angle_j, MotionStatus.OK
+                outliers.update(_outlier_tracks(trailer_pairs, estimate.inlier_masks))
+        T_trailer = None
+        if self.config.mode == "separate":
+            predicted = predicted_trailer if predicted_trailer is not None else straight_motion(tractor.chord)
+            if tractor.status is MotionStatus.STANDSTILL:
+                T_trailer, trailer_status = np.eye(4), MotionStatus.STANDSTILL
+            else:
+                chord_prior = max(float(np.linalg.norm(predicted[:2, 3])), 1e-3)
+                own = estimate_tractor_motion(trailer_pairs, trailer_axle_x, self._trailer_config, chord_prior=chord_prior, rng=self._rng)
+                trailer_status = _status(own.status)
+                if sum(len(p) for p in trailer_pairs) < self.config.keyframes.min_tracks:
+                    trailer_status = MotionStatus.TOO_FEW_TRACKS
+                if trailer_status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and own.T_i_j is not None:
+                    T_trailer = own.T_i_j
+                    outliers.update(_outlier_tracks(trailer_pairs, own.inlier_masks))
+                else:
+                    trailer_status = MotionStatus.TOO_FEW_TRACKS if trailer_status is not MotionStatus.STANDSTILL else trailer_status
+                    T_trailer = predicted
+        return MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer, outliers)
+
+
+def hitch_trailer_motion(T_tractor: np.ndarray, hitch_i: float, hitch_j: float) -> np.ndarray:
+    """Trailer motion implied by tractor motion and hitch angles, paper eqs. (3), (4):
+    ``R_B = Rz(θ)^T R Rz(θ')``, ``t_B = Rz(θ)^T t``."""
+    rotation = rot_z(hitch_i).T @ T_tractor[:3, :3] @ rot_z(hitch_j)
+    return make_pose(rotation, rot_z(hitch_i).T @ T_tractor[:3, 3])
+

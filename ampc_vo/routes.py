@@ -1,0 +1,191 @@
+"""Route descriptions for the simulator: speed and curvature as functions of arc length (DESIGN 6).
+
+A route is a list of segments driven one after the other by the tractor's rear-axle midpoint.
+Each segment has a length (metres), a curvature profile ``kappa(s)`` over its local arc length
+``s`` in [0, length] (1/m, positive = left turn) and a target speed (m/s). Segment kinds:
+
+* ``straight``: ``kappa = 0``;
+* ``turn``: a constant-curvature arc of ``angle_deg`` (signed, positive = left) and ``radius``,
+  with optional clothoid ``transition`` (m) at entry and exit (curvature ramps linearly); the arc
+  is shortened so that the total heading change is exactly ``angle_deg``;
+* ``clothoid``: curvature ramps linearly from ``kappa_start`` to ``kappa_end``;
+* ``lane_change``: ``kappa(s) = (2 pi offset / L^2) sin(2 pi s / L)``, which moves the vehicle
+  sideways by ~``offset`` metres (positive = left) with zero net heading change;
+* ``s_curve``: ``kappa(s) = max_curvature sin(2 pi s / L)``, a left-then-right S.
+
+Speed changes between segments ramp linearly over ``speed_ramp_m`` metres after the boundary.
+Route segments are built from YAML (see ``sim_config``); errors name the file and the field.
+"""
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from ampc_vo.errors import ConfigError
+
+SEGMENT_KINDS = ("straight", "turn", "clothoid", "lane_change", "s_curve")
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One piece of a route. ``kind`` selects the curvature profile (module docstring)."""
+
+    kind: str
+    length: float
+    speed: float
+    radius: float = 0.0
+    angle: float = 0.0          # turn: signed heading change (radians)
+    transition: float = 0.0     # turn: clothoid length at entry and exit (m)
+    kappa_start: float = 0.0    # clothoid
+    kappa_end: float = 0.0      # clothoid
+    offset: float = 0.0         # lane_change: lateral offset (m)
+    max_curvature: float = 0.0  # s_curve
+
+    def curvature(self, s: float) -> float:
+        """Curvature (1/m) at local arc length ``s`` in [0, length]."""
+        if self.kind == "straight":
+            return 0.0
+        if self.kind == "turn":
+            kappa = math.copysign(1.0 / self.radius, self.angle)
+            if self.transition > 0.0:
+                if s < self.transition:
+                    return kappa * s / self.transition
+                if s > self.length - self.transition:
+                    return kappa * max(self.length - s, 0.0) / self.transition
+            return kappa
+        if self.kind == "clothoid":
+            fraction = min(max(s / self.length, 0.0), 1.0)
+            return self.kappa_start + (self.kappa_end - self.kappa_start) * fraction
+        if self.kind == "lane_change":
+            return 2.0 * math.pi * self.offset / self.length**2 * math.sin(2.0 * math.pi * s / self.length)
+        if self.kind == "s_curve":
+            return self.max_curvature * math.sin(2.0 * math.pi * s / self.length)
+        raise ValueError(f"unknown segment kind {self.kind!r}")
+
+
+@dataclass(frozen=True)
+class Route:
+    """Segments driven in order; ``curvature(s)`` and ``speed(s)`` over the route's arc length.
+
+    Beyond the end the route continues straight at the last speed (so a fixed duration longer
+    than the route is still well defined).
+    """
+
+    segments: tuple[Segment, ...]
+    speed_ramp_m: float = 10.0
+
+    def __post_init__(self) -> None:
+        starts, total = [], 0.0
+        for segment in self.segments:
+            starts.append(total)
+            total += segment.length
+        object.__setattr__(self, "_starts", starts)
+        object.__setattr__(self, "_length", total)
+
+    @property
+    def length(self) -> float:
+        return self._length  # type: ignore[attr-defined]
+
+    def _locate(self, s: float) -> int:
+        return max(bisect.bisect_right(self._starts, s) - 1, 0)  # type: ignore[attr-defined]
+
+    def curvature(self, s: float) -> float:
+        """Curvature (1/m) at route arc length ``s``; 0 beyond the end."""
+        if s >= self.length or not self.segments:
+            return 0.0
+        index = self._locate(s)
+        return self.segments[index].curvature(s - self._starts[index])  # type: ignore[attr-defined]
+
+    def profile(self, s: float) -> tuple[float, float]:
+        """``(speed(s), curvature(s))`` with one segment lookup (the integrator's hot path)."""
+        index = self._locate(s)
+        start = self._starts[index]  # type: ignore[attr-defined]
+        segment = self.segments[index]
+        curvature = segment.curvature(s - start) if s < self.length else 0.0
+        if index == 0 or self.speed_ramp_m <= 0.0 or s - start >= min(self.speed_ramp_m, segment.length):
+            return segment.speed, curvature
+        return self.speed(s), curvature
+
+    def speed(self, s: float) -> float:
+        """Speed (m/s) at arc length ``s``: each segment's speed, ramped linearly over
+        ``speed_ramp_m`` after a boundary where it changes."""
+        index = self._locate(min(s, self.length))
+        target = self.segments[index].speed
+        if index == 0 or self.speed_ramp_m <= 0.0:
+            return target
+        previous = self.segments[index - 1].speed
+        into = s - self._starts[index]  # type: ignore[attr-defined]
+        ramp = min(self.speed_ramp_m, self.segments[index].length)
+        if into >= ramp:
+            return target
+        return previous + (target - previous) * into / ramp
+
+
+# ---------------------------------------------------------------------- parsing
+def _number(spec: dict, key: str, where: str, source: str, default: float | None = None, positive: bool = False) -> float:
+    if key not in spec or spec[key] is None:
+        if default is None:
+            raise ConfigError(f"{source}: {where}.{key}: missing")
+        return default
+    try:
+        value = float(spec[key])
+    except (TypeError, ValueError):
+        raise ConfigError(f"{source}: {where}.{key}: expected a number, got {spec[key]!r}") from None
+    if not math.isfinite(value) or (positive and value <= 0.0):
+        raise ConfigError(f"{source}: {where}.{key}: must be a {'positive ' if positive else ''}finite number, got {spec[key]!r}")
+    return value
+
+
+_ALLOWED_KEYS = {
+    "straight": {"length"},
+    "turn": {"angle_deg", "radius", "transition"},
+    "clothoid": {"length", "curvature_start", "curvature_end"},
+    "lane_change": {"length", "offset"},
+    "s_curve": {"length", "max_curvature"},
+}
+
+
+def segment_from_dict(spec: Any, default_speed: float, where: str, source: str) -> Segment:
+    """Parse one YAML segment mapping, e.g. ``{type: turn, angle_deg: 90, radius: 20}``."""
+    if not isinstance(spec, dict):
+        raise ConfigError(f"{source}: {where}: expected a mapping with a 'type' field, got {spec!r}")
+    kind = spec.get("type")
+    if kind not in SEGMENT_KINDS:
+        raise ConfigError(f"{source}: {where}.type: unknown segment type {kind!r} (expected one of {SEGMENT_KINDS})")
+    unknown = set(spec) - _ALLOWED_KEYS[kind] - {"type", "speed"}
+    if unknown:
+        raise ConfigError(f"{source}: {where}: unknown field(s) {sorted(unknown)} for a {kind} segment")
+    speed = _number(spec, "speed", where, source, default=default_speed, positive=True)
+    if kind == "turn":
+        angle = math.radians(_number(spec, "angle_deg", where, source))
+        radius = _number(spec, "radius", where, source, positive=True)
+        transition = _number(spec, "transition", where, source, default=0.0)
+        if angle == 0.0:
+            raise ConfigError(f"{source}: {where}.angle_deg: a turn needs a non-zero angle")
+        if transition < 0.0:
+            raise ConfigError(f"{source}: {where}.transition: must be >= 0")
+        # Heading change = kappa * (arc + transition): each clothoid contributes kappa * T / 2.
+        length = abs(angle) * radius + transition
+        if abs(angle) * radius < transition:
+            raise ConfigError(f"{source}: {where}.transition: {transition} m is longer than the turn allows ({abs(angle) * radius:.1f} m)")
+        return Segment("turn", length, speed, radius=radius, angle=angle, transition=transition)
+    length = _number(spec, "length", where, source, positive=True)
+    if kind == "straight":
+        return Segment("straight", length, speed)
+    if kind == "clothoid":
+        return Segment("clothoid", length, speed,
+                       kappa_start=_number(spec, "curvature_start", where, source),
+                       kappa_end=_number(spec, "curvature_end", where, source))
+    if kind == "lane_change":
+        return Segment("lane_change", length, speed, offset=_number(spec, "offset", where, source))
+    return Segment("s_curve", length, speed, max_curvature=_number(spec, "max_curvature", where, source))
+
+
+def route_from_list(raw: Any, default_speed: float, source: str, field_name: str = "segments", speed_ramp_m: float = 10.0) -> Route:
+    """Parse the YAML ``segments`` list into a :class:`Route`."""
+    if not isinstance(raw, list) or not raw:
+        raise ConfigError(f"{source}: {field_name}: expected a non-empty list of segments")
+    segments = tuple(segment_from_dict(spec, default_speed, f"{field_name}[{index}]", source) for index, spec in enumerate(raw))
+    return Route(segments, speed_ramp_m=speed_ramp_m)

@@ -1,0 +1,68 @@
+"""Planar motion factor: relative roll, pitch and height of a body between keyframes near zero.
+
+Residual (DESIGN sections 1, 3: the planar model enforced softly), 3-D:
+
+    e = [roll, pitch, t_z]      (radians, radians, metres)
+
+of the body motion ``(R, t) = T_i_j = T_world_i^-1 T_world_j``, with ``R = Rz(yaw) Ry(pitch)
+Rx(roll)`` (ZYX order, as ``gtsam.Rot3.RzRyRx``): ``roll = atan2(R21, R22)``, ``pitch =
+atan2(-R20, sqrt(R21^2 + R22^2))``, and ``t_z`` the height change expressed in body frame i. Yaw
+and the horizontal translation are free. Valid for ``|pitch| < 90 deg``.
+"""
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from factors._checks import check_distinct_keys, check_noise_model
+from factors._custom import POSE, make_error_function
+from factors._lie import relative_motion
+
+_UNIT = np.eye(3)
+
+
+def planar_motion_error(
+    T_world_i: gtsam.Pose3,
+    T_world_j: gtsam.Pose3,
+    jacobians: bool = False,
+) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Residual (3,) of the module docstring and, if ``jacobians``, two (3, 6) Jacobians w.r.t.
+    ``T_world_i`` and ``T_world_j``."""
+    T_i_j, between_i = relative_motion(T_world_i, T_world_j)
+    rotation = T_i_j.rotation().matrix()
+    last_row = rotation[2]
+    r20, r21, r22 = last_row
+    horizontal = np.hypot(r21, r22)
+    residual = np.array([np.arctan2(r21, r22), np.arctan2(-r20, horizontal), T_i_j.translation()[2]])
+    if not jacobians:
+        return residual, None
+    # d R2k / d omega = e_k x r2 (right perturbation R Exp(omega)), rows k = 0, 1, 2
+    row_by_omega = np.cross(_UNIT, last_row)
+    roll_by_omega = (r22 * row_by_omega[1] - r21 * row_by_omega[2]) / (horizontal * horizontal)
+    horizontal_by_omega = (r21 * row_by_omega[1] + r22 * row_by_omega[2]) / horizontal
+    pitch_by_omega = -horizontal * row_by_omega[0] + r20 * horizontal_by_omega  # r20^2 + h^2 = 1
+    jacobian = np.zeros((3, 6))
+    jacobian[0, :3] = roll_by_omega
+    jacobian[1, :3] = pitch_by_omega
+    jacobian[2, 3:] = last_row  # d t_z = r2 . v
+    return residual, [jacobian @ between_i, jacobian]
+
+
+class PlanarMotionFactor(gtsam.CustomFactor):
+    """Soft planar-motion constraint on two ``Pose3`` keys ``T_world_body`` (module docstring).
+
+    ``noise_model`` has dimension 3 (roll rad, pitch rad, height m), e.g.
+    ``gtsam.noiseModel.Diagonal.Sigmas([0.01, 0.01, 0.02])`` for a mildly uneven road.
+    """
+
+    def __init__(self, key_i: int, key_j: int, noise_model: gtsam.noiseModel.Base) -> None:
+        keys = check_distinct_keys({"key_i": key_i, "key_j": key_j})
+        check_noise_model(noise_model, 3)
+        super().__init__(noise_model, keys, make_error_function(keys, (POSE, POSE), planar_motion_error))
+
+    @staticmethod
+    def evaluate(
+        T_world_i: gtsam.Pose3, T_world_j: gtsam.Pose3, jacobians: bool = False
+    ) -> tuple[np.ndarray, list[np.ndarray] | None]:
+        """Unwhitened residual (3,) and optionally its Jacobians (see :func:`planar_motion_error`)."""
+        return planar_motion_error(T_world_i, T_world_j, jacobians)

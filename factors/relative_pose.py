@@ -1,0 +1,46 @@
+"""Relative-pose prior between two ``Pose3`` keys, safe near the identity.
+
+    e = Log( Z^-1 T_world_i^-1 T_world_j )        (tangent [omega, v]: radians, metres)
+
+The same residual as ``gtsam.BetweenFactorPose3``; it exists because in gtsam 4.3 the Jacobian
+that ``Pose3.Logmap`` writes for near-identity poses (rotation below ~0.2 rad) leaves a block
+unwritten, so the C++ ``BetweenFactorPose3`` linearises to NaN/garbage exactly where priors on
+small motions live (standstill, predicted keyframe motion). Here the Jacobian buffer is zeroed.
+"""
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from factors._checks import check_distinct_keys, check_noise_model, check_rigid_transform
+
+
+def relative_pose_error(measured: gtsam.Pose3, T_world_i: gtsam.Pose3, T_world_j: gtsam.Pose3, jacobians: bool = False) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Residual (6,) and, if ``jacobians``, the (6, 6) Jacobians w.r.t. ``T_world_i``, ``T_world_j``."""
+    if not jacobians:
+        return gtsam.Pose3.Logmap(measured.between(T_world_i.between(T_world_j))), None
+    H_i, H_j = np.zeros((6, 6), order="F"), np.zeros((6, 6), order="F")
+    T_i_j = T_world_i.between(T_world_j, H_i, H_j)
+    H_measured, H_relative = np.zeros((6, 6), order="F"), np.zeros((6, 6), order="F")
+    error_pose = measured.between(T_i_j, H_measured, H_relative)
+    H_log = np.zeros((6, 6), order="F")
+    residual = gtsam.Pose3.Logmap(error_pose, H_log)
+    chain = H_log @ H_relative
+    return residual, [chain @ H_i, chain @ H_j]
+
+
+class RelativePoseFactor(gtsam.CustomFactor):
+    """Prior ``T_world_i^-1 T_world_j ~ measured`` with a 6-D noise model (module docstring)."""
+
+    def __init__(self, key_i: int, key_j: int, measured: object, noise_model: gtsam.noiseModel.Base) -> None:
+        keys = check_distinct_keys({"key_i": key_i, "key_j": key_j})
+        check_noise_model(noise_model, 6)
+        measured_pose = gtsam.Pose3(check_rigid_transform(measured, "measured"))
+
+        def error(this: gtsam.CustomFactor, values: gtsam.Values, jacobians, measured_pose=measured_pose, keys=keys):
+            residual, blocks = relative_pose_error(measured_pose, values.atPose3(keys[0]), values.atPose3(keys[1]), jacobians is not None)
+            if jacobians is not None:
+                jacobians[0], jacobians[1] = blocks
+            return residual
+
+        super().__init__(noise_model, keys, error)

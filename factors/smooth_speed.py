@@ -1,0 +1,55 @@
+"""Smooth-speed prior between three consecutive keyframes of one body (a metric-scale aid).
+
+Trucks accelerate slowly, so the mean speed of the body origin over consecutive keyframe
+intervals changes little (issue 5, DESIGN 2.3: scale is weakly observable in straight driving).
+For poses ``T_a, T_b, T_c`` (``Pose3`` keys, T_world_body) at times ``t_a < t_b < t_c``:
+
+    r = |p_c - p_b| / (t_c - t_b) - |p_b - p_a| / (t_b - t_a)          [m/s]
+
+Analytic Jacobians (right perturbation, tangent order ``[omega, v]``, so ``dp = R dv``):
+``d|p_c - p_b| / dxi_c = [0, u^T R_c]`` with ``u`` the unit chord direction, and so on. Near a
+standstill (chord < 1e-6 m) the direction is undefined and that chord's Jacobian is set to zero.
+"""
+from __future__ import annotations
+
+from functools import partial
+
+import gtsam
+import numpy as np
+
+_MIN_CHORD_M = 1e-6
+
+
+def _chord_and_gradients(T_from: gtsam.Pose3, T_to: gtsam.Pose3) -> tuple[float, np.ndarray, np.ndarray]:
+    """``|p_to - p_from|`` and its (1, 6) Jacobians w.r.t. ``T_from`` and ``T_to``."""
+    delta = np.asarray(T_to.translation()) - np.asarray(T_from.translation())
+    length = float(np.linalg.norm(delta))
+    H_from, H_to = np.zeros((1, 6)), np.zeros((1, 6))
+    if length > _MIN_CHORD_M:
+        direction = delta / length
+        H_to[0, 3:] = direction @ T_to.rotation().matrix()
+        H_from[0, 3:] = -direction @ T_from.rotation().matrix()
+    return length, H_from, H_to
+
+
+def smooth_speed_error(dt_first: float, dt_second: float, this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list[np.ndarray] | None) -> np.ndarray:
+    """Error function of :func:`SmoothSpeedFactor` (module docstring)."""
+    keys = this.keys()
+    T_a, T_b, T_c = (values.atPose3(key) for key in keys)
+    chord_first, H_first_a, H_first_b = _chord_and_gradients(T_a, T_b)
+    chord_second, H_second_b, H_second_c = _chord_and_gradients(T_b, T_c)
+    if jacobians is not None:
+        jacobians[0] = -H_first_a / dt_first
+        jacobians[1] = H_second_b / dt_second - H_first_b / dt_first
+        jacobians[2] = H_second_c / dt_second
+    return np.array([chord_second / dt_second - chord_first / dt_first])
+
+
+def SmoothSpeedFactor(key_a: int, key_b: int, key_c: int, dt_first: float, dt_second: float, noise_model: gtsam.noiseModel.Base) -> gtsam.CustomFactor:
+    """Prior that the speed over ``(a, b)`` (``dt_first`` s) equals the speed over ``(b, c)``
+    (``dt_second`` s); ``noise_model`` is 1-D, in m/s (e.g. acceleration sigma times the mean dt)."""
+    if not (dt_first > 0.0 and dt_second > 0.0):
+        raise ValueError(f"SmoothSpeedFactor needs positive intervals, got {dt_first}, {dt_second}")
+    if noise_model.dim() != 1:
+        raise ValueError(f"SmoothSpeedFactor needs a 1-D noise model, got dimension {noise_model.dim()}")
+    return gtsam.CustomFactor(noise_model, [key_a, key_b, key_c], partial(smooth_speed_error, float(dt_first), float(dt_second)))

@@ -1,0 +1,75 @@
+"""Wheel-speed (chord length) factor: an optional metric scale source for the tractor.
+
+Residual (DESIGN section 3, optional ``WheelSpeedFactor``), scalar, metres:
+
+    e = |d| - rho,      d = R m + t - m
+
+with ``(R, t) = T_i_j`` the body motion between keyframes, ``m = (axle_x, 0, 0)`` the rigid axle
+midpoint and ``rho`` the measured chord length of the axle midpoint (e.g. wheel odometry arc
+length L, which exceeds the chord by about ``L^3 kappa^2 / 24`` on an arc of curvature kappa).
+Positive when the estimate moved farther than measured. At standstill (``|d| -> 0``) the direction
+of ``d`` is undefined and the Jacobian is set to zero.
+"""
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from factors._checks import check_distinct_keys, check_finite_scalar, check_noise_model
+from factors._custom import POSE, make_error_function
+from factors._lie import relative_motion
+from factors.nonholonomic import axle_displacement
+
+_MIN_CHORD = 1e-9  # metres
+
+
+def chord_error(
+    T_world_i: gtsam.Pose3,
+    T_world_j: gtsam.Pose3,
+    axle_x: float,
+    chord_length: float,
+    jacobians: bool = False,
+) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Residual (1,) of the module docstring (metres) and, if ``jacobians``, two (1, 6) Jacobians."""
+    T_i_j, between_i = relative_motion(T_world_i, T_world_j)
+    rotation = T_i_j.rotation().matrix()
+    displacement, displacement_by_omega = axle_displacement(rotation, T_i_j.translation(), np.array([axle_x, 0.0, 0.0]))
+    length = float(np.linalg.norm(displacement))
+    residual = np.array([length - chord_length])
+    if not jacobians:
+        return residual, None
+    jacobian = np.zeros((1, 6))
+    if length > _MIN_CHORD:
+        direction = displacement / length
+        jacobian[0, :3] = direction @ displacement_by_omega
+        jacobian[0, 3:] = direction @ rotation
+    return residual, [jacobian @ between_i, jacobian]
+
+
+class WheelSpeedFactor(gtsam.CustomFactor):
+    """Chord length of a body's axle midpoint between keyframes i and j (module docstring).
+
+    ``axle_x``: signed axle x in the body frame; ``chord_length`` (m, >= 0); ``noise_model`` of
+    dimension 1 in metres.
+    """
+
+    def __init__(self, key_i: int, key_j: int, axle_x: float, chord_length: float, noise_model: gtsam.noiseModel.Base) -> None:
+        keys = check_distinct_keys({"key_i": key_i, "key_j": key_j})
+        axle_x = check_finite_scalar(axle_x, "axle_x")
+        chord_length = check_finite_scalar(chord_length, "chord_length")
+        if chord_length < 0.0:
+            raise ValueError(f"chord_length must be >= 0, got {chord_length}")
+        check_noise_model(noise_model, 1)
+
+        def evaluate(T_world_i, T_world_j, jacobians=False, axle_x=axle_x, chord_length=chord_length):
+            return chord_error(T_world_i, T_world_j, axle_x, chord_length, jacobians)
+
+        super().__init__(noise_model, keys, make_error_function(keys, (POSE, POSE), evaluate))
+        self.axle_x = axle_x
+        self.chord_length = chord_length
+
+    def evaluate(
+        self, T_world_i: gtsam.Pose3, T_world_j: gtsam.Pose3, jacobians: bool = False
+    ) -> tuple[np.ndarray, list[np.ndarray] | None]:
+        """Unwhitened residual (1,) and optionally its Jacobians (see :func:`chord_error`)."""
+        return chord_error(T_world_i, T_world_j, self.axle_x, self.chord_length, jacobians)

@@ -1,0 +1,46 @@
+#!/usr/bin/env python
+"""Evaluate an odometry run against a dataset's ground truth (issue 5, DESIGN section 5).
+
+    python scripts/evaluate.py OUT DATASET [--seconds-per-frame S] [--title TEXT]
+
+Reads OUT/tractor.tum, OUT/trailer.tum, OUT/hitch.csv (and OUT/timing.json if present) and
+DATASET/groundtruth.csv; writes OUT/metrics.json and OUT/evaluation.png and prints a table.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from ampc_vo.errors import AmpcError
+from ampc_vo.evaluation import METRICS_FILE, PLOT_FILE, evaluate_output, load_groundtruth, plot_evaluation, write_metrics
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("out", type=Path, help="odometry output folder (tractor.tum, trailer.tum, hitch.csv)")
+    parser.add_argument("dataset", type=Path, help="dataset folder with groundtruth.csv")
+    parser.add_argument("--seconds-per-frame", type=float, default=None, help="override OUT/timing.json")
+    parser.add_argument("--max-time-diff", type=float, default=0.01, help="timestamp association tolerance (s)")
+    parser.add_argument("--title", default="", help="plot title")
+    parser.add_argument("--no-plot", action="store_true", help="do not write evaluation.png")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        truth = load_groundtruth(args.dataset)
+        evaluation = evaluate_output(args.out, truth, args.seconds_per_frame, args.max_time_diff)
+    except AmpcError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    write_metrics(evaluation.metrics, args.out / METRICS_FILE)
+    if not args.no_plot:
+        plot_evaluation(evaluation, args.out / PLOT_FILE, title=args.title or str(args.out))
+    print(f"evaluation of {args.out} against {args.dataset}")
+    print(evaluation.metrics.table())
+    print(f"wrote {args.out / METRICS_FILE}" + ("" if args.no_plot else f" and {args.out / PLOT_FILE}"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,145 @@
+"""Dataset folder (DESIGN 5): write/read round trip and one clear DatasetError per bad input."""
+from __future__ import annotations
+
+import csv
+import shutil
+
+import numpy as np
+import pytest
+
+from ampc_vo.datasets import GROUNDTRUTH_COLUMNS, read_dataset, write_dataset
+from ampc_vo.errors import DatasetError
+
+
+def _rewrite_csv(path, transform):
+    with open(path, newline="") as handle:
+        rows = list(csv.reader(handle))
+    rows = transform(rows)
+    with open(path, "w", newline="") as handle:
+        csv.writer(handle).writerows(rows)
+
+
+def test_round_trip_identical_poses_and_rig(tiny_dataset, default_rig, short_trajectory):
+    dataset = read_dataset(tiny_dataset, check_images=True)
+    assert dataset.has_images and len(dataset) == 5
+    assert dataset.camera_names == tuple(default_rig.camera_names)
+    assert dataset.rig.bodies == default_rig.bodies
+    for camera in default_rig.cameras:
+        assert np.max(np.abs(dataset.rig.camera(camera.name).T_body_camera - camera.T_body_camera)) < 1e-15
+    truth = dataset.groundtruth
+    assert np.array_equal(truth.timestamps, short_trajectory.timestamps[:5])
+    assert np.array_equal(truth.hitch_angle, short_trajectory.hitch_angle[:5])
+    assert np.max(np.abs(truth.T_world_tractor - short_trajectory.T_world_tractor[:5])) < 1e-15
+    assert np.max(np.abs(truth.T_world_trailer - short_trajectory.T_world_trailer[:5])) < 1e-15
+    image = dataset.load_image(3, "rear")
+    assert image.dtype == np.uint8 and image.shape == (48, 64)
+    assert dataset.image_path(3, "rear") == tiny_dataset / "images" / "rear" / "000003.png"
+
+
+def test_groundtruth_header_is_exactly_the_documented_one(tiny_dataset):
+    header = (tiny_dataset / "groundtruth.csv").read_text().splitlines()[0]
+    assert header == "timestamp,tractor_x,tractor_y,tractor_z,tractor_qx,tractor_qy,tractor_qz,tractor_qw," \
+                     "trailer_x,trailer_y,trailer_z,trailer_qx,trailer_qy,trailer_qz,trailer_qw,hitch_angle"
+    assert tuple(header.split(",")) == GROUNDTRUTH_COLUMNS
+    assert (tiny_dataset / "frames.csv").read_text().splitlines()[0] == "frame,timestamp,front,left,rear,right"
+
+
+def test_dataset_without_images_is_valid(tmp_path, default_rig, short_trajectory):
+    root = write_dataset(tmp_path / "bearings_only", default_rig, short_trajectory.timestamps, groundtruth=short_trajectory)
+    dataset = read_dataset(root)
+    assert not dataset.has_images and dataset.measurements is None
+    with pytest.raises(DatasetError, match="no image"):
+        dataset.load_image(0, "front")
+
+
+def test_images_folder_absent_reads_as_no_images(tiny_dataset):
+    shutil.rmtree(tiny_dataset / "images")
+    assert not read_dataset(tiny_dataset).has_images
+
+
+def test_missing_rig(tiny_dataset):
+    (tiny_dataset / "rig.yaml").unlink()
+    with pytest.raises(DatasetError, match=r"rig\.yaml: file missing"):
+        read_dataset(tiny_dataset)
+
+
+def test_missing_frames_file(tiny_dataset):
+    (tiny_dataset / "frames.csv").unlink()
+    with pytest.raises(DatasetError, match=r"frames\.csv: file missing"):
+        read_dataset(tiny_dataset)
+
+
+def test_missing_image(tiny_dataset):
+    (tiny_dataset / "images" / "left" / "000002.png").unlink()
+    with pytest.raises(DatasetError, match=r"images/left/000002\.png: image file missing"):
+        read_dataset(tiny_dataset)
+
+
+def test_corrupt_image(tiny_dataset):
+    (tiny_dataset / "images" / "right" / "000001.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    read_dataset(tiny_dataset)  # existence only by default: decoding is lazy
+    with pytest.raises(DatasetError, match=r"images/right/000001\.png: image cannot be decoded"):
+        read_dataset(tiny_dataset, check_images=True)
+    with pytest.raises(DatasetError, match=r"000001\.png: image cannot be decoded"):
+        read_dataset(tiny_dataset).load_image(1, "right")
+
+
+def test_non_increasing_timestamps(tiny_dataset):
+    def swap(rows):
+        rows[3][1], rows[4][1] = rows[4][1], rows[3][1]
+        return rows
+
+    _rewrite_csv(tiny_dataset / "frames.csv", swap)
+    with pytest.raises(DatasetError, match=r"frames\.csv: timestamps not strictly increasing at line 5"):
+        read_dataset(tiny_dataset)
+
+
+def test_camera_name_mismatch(tiny_dataset):
+    def rename(rows):
+        rows[0][2] = "windscreen"
+        return rows
+
+    _rewrite_csv(tiny_dataset / "frames.csv", rename)
+    with pytest.raises(DatasetError, match=r"frames\.csv: camera columns .*windscreen.* do not match the rig's cameras"):
+        read_dataset(tiny_dataset)
+
+
+def test_groundtruth_length_mismatch(tiny_dataset):
+    _rewrite_csv(tiny_dataset / "groundtruth.csv", lambda rows: rows[:-1])
+    with pytest.raises(DatasetError, match=r"groundtruth\.csv: 4 rows but frames\.csv has 5 frames"):
+        read_dataset(tiny_dataset)
+
+
+def test_groundtruth_timestamp_mismatch(tiny_dataset):
+    def shift(rows):
+        rows[2][0] = "12.5"
+        return rows
+
+    _rewrite_csv(tiny_dataset / "groundtruth.csv", shift)
+    with pytest.raises(DatasetError, match=r"groundtruth\.csv: line 3: timestamp 12\.5 does not match"):
+        read_dataset(tiny_dataset)
+
+
+def test_groundtruth_bad_header_and_numbers(tiny_dataset):
+    def rename(rows):
+        rows[0][1] = "x"
+        return rows
+
+    _rewrite_csv(tiny_dataset / "groundtruth.csv", rename)
+    with pytest.raises(DatasetError, match=r"groundtruth\.csv: header must be timestamp,tractor_x"):
+        read_dataset(tiny_dataset)
+
+
+def test_frames_with_a_non_number(tiny_dataset):
+    def corrupt(rows):
+        rows[2][1] = "soon"
+        return rows
+
+    _rewrite_csv(tiny_dataset / "frames.csv", corrupt)
+    with pytest.raises(DatasetError, match=r"frames\.csv: line 3: not a number"):
+        read_dataset(tiny_dataset)
+
+
+def test_missing_folder(tmp_path):
+    with pytest.raises(DatasetError, match="dataset folder not found"):
+        read_dataset(tmp_path / "nothing")

@@ -1,0 +1,227 @@
+"""Tests of factors.epipolar (GeneralizedEpipolarFactor) and the Sampson Jacobian in ampc_vo.epipolar."""
+from __future__ import annotations
+
+import gc
+
+import gtsam
+import numpy as np
+import pytest
+from gtsam.utils.numerical_derivative import numericalDerivative21, numericalDerivative22
+
+from ampc_vo.epipolar import gec_sampson, gec_sampson_jacobian
+from ampc_vo.errors import BearingError
+from ampc_vo.geometry import make_pose, rot_x, rot_y, rot_z
+from factors import GeneralizedEpipolarFactor, body_correspondences, epipolar_error, robust_noise
+from factors_support import articulated_truth, assert_jacobian_close, random_pose
+
+SIGMA = 1.0 / 700.0
+
+
+def _values(*poses: gtsam.Pose3) -> gtsam.Values:
+    values = gtsam.Values()
+    for key, pose in enumerate(poses):
+        values.insert(key, pose)
+    return values
+
+
+def _camera(yaw: float, pitch: float, center) -> np.ndarray:
+    """T_body_camera of an OpenCV camera looking along body yaw, pitched down."""
+    body_from_opencv = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    return make_pose(rot_z(yaw) @ rot_y(pitch) @ body_from_opencv, np.asarray(center, dtype=float))
+
+
+def _two_camera_bearings(rng, T_i_j, T_body_camera_i, T_body_camera_j, count=30):
+    """Points seen by camera A in view i and camera B in view j (Plücker form), camera-frame bearings."""
+    points_i = rng.uniform([-30.0, -30.0, -3.0], [30.0, 30.0, 10.0], (count, 3))
+    points_j = (points_i - T_i_j[:3, 3]) @ T_i_j[:3, :3]
+    in_camera_i = (points_i - T_body_camera_i[:3, 3]) @ T_body_camera_i[:3, :3]
+    in_camera_j = (points_j - T_body_camera_j[:3, 3]) @ T_body_camera_j[:3, :3]
+    return in_camera_i / np.linalg.norm(in_camera_i, axis=1, keepdims=True), in_camera_j / np.linalg.norm(in_camera_j, axis=1, keepdims=True)
+
+
+# ---------------------------------------------------------------------- zero at ground truth
+@pytest.mark.parametrize("seed", range(8))
+def test_zero_error_at_ground_truth_on_both_bodies(seed):
+    truth = articulated_truth(np.random.default_rng(seed))
+    for group in truth.problem.correspondences:
+        poses = (truth.tractor_i, truth.tractor_j) if group.body == "tractor" else (truth.trailer_i, truth.trailer_j)
+        factor = GeneralizedEpipolarFactor(0, 1, group.camera.T_body_camera, group.bearings_i, group.bearings_j, robust_noise(SIGMA, len(group), None))
+        error = factor.unwhitenedError(_values(*poses))
+        assert error.shape == (len(group),)
+        assert np.max(np.abs(error)) < 1e-9
+        # wrong motion: the residuals are clearly non-zero (in units of the pixel noise)
+        wrong = poses[1].compose(gtsam.Pose3(gtsam.Rot3.Expmap(np.array([0.05, 0.05, 0.05])), np.array([0.0, 0.5, 0.3])))
+        assert np.max(np.abs(factor.unwhitenedError(_values(poses[0], wrong)))) > 3 * SIGMA
+
+
+def test_value_is_gec_sampson_of_relative_motion():
+    truth = articulated_truth(np.random.default_rng(11), pixel_noise_px=1.0)
+    group = truth.problem.correspondences[0]
+    correspondences = body_correspondences(group.camera.T_body_camera, group.bearings_i, group.bearings_j)
+    pose_j = truth.tractor_j.compose(random_pose(np.random.default_rng(1), 0.05, 0.2))
+    residual, _ = epipolar_error(truth.tractor_i, pose_j, correspondences)
+    T_i_j = truth.tractor_i.between(pose_j)
+    expected = gec_sampson(group.body_bearings_i, group.body_bearings_j, T_i_j.rotation().matrix(), T_i_j.translation(), group.center)
+    np.testing.assert_allclose(residual, expected, atol=1e-12)
+
+
+def test_plucker_two_camera_form_zero_at_truth_and_observes_standstill():
+    rng = np.random.default_rng(3)
+    camera_a = _camera(0.3, 0.1, [4.0, 1.0, 2.5])
+    camera_b = _camera(-0.4, 0.2, [3.5, -1.0, 2.0])
+    for T_i_j in (make_pose(rot_z(0.2), np.array([1.5, 0.2, 0.0])), np.eye(4)):
+        bearings_i, bearings_j = _two_camera_bearings(rng, T_i_j, camera_a, camera_b)
+        factor = GeneralizedEpipolarFactor(0, 1, camera_a, bearings_i, bearings_j, robust_noise(SIGMA, 30, None), T_body_camera_j=camera_b)
+        pose_i = random_pose(rng)
+        pose_j = pose_i.compose(gtsam.Pose3(T_i_j))
+        assert np.max(np.abs(factor.unwhitenedError(_values(pose_i, pose_j)))) < 1e-9
+        # metric scale is observable: scaling the translation breaks the constraint
+        scaled = gtsam.Pose3(gtsam.Rot3(T_i_j[:3, :3]), 1.5 * T_i_j[:3, 3] + [0.0, 0.3, 0.0])
+        assert np.max(np.abs(factor.unwhitenedError(_values(pose_i, pose_i.compose(scaled))))) > 1e-3
+
+
+# ---------------------------------------------------------------------- Jacobians
+MOTIONS = {
+    "zero yaw change": make_pose(np.eye(3), np.array([1.2, 0.0, 0.0])),
+    "tiny yaw change": make_pose(rot_z(1e-7), np.array([1.0, 1e-8, 0.0])),
+    "planar turn": make_pose(rot_z(0.15), np.array([1.5, 0.1, 0.0])),
+    "large 3-D rotation": make_pose(rot_z(1.4) @ rot_x(0.7) @ rot_y(-0.9), np.array([-2.0, 3.0, 1.0])),
+    "short baseline": make_pose(rot_z(0.01), np.array([0.02, 0.001, 0.0])),
+}
+
+
+@pytest.mark.parametrize("motion", list(MOTIONS))
+@pytest.mark.parametrize("two_cameras", [False, True])
+def test_jacobians_match_numerical_derivatives(motion, two_cameras):
+    rng = np.random.default_rng(7)
+    T_i_j = MOTIONS[motion]
+    camera_a = _camera(0.0, 0.15, [5.0, 0.3, 2.5])
+    camera_b = _camera(1.5, 0.1, [2.0, 1.3, 2.2]) if two_cameras else camera_a
+    bearings_i, bearings_j = _two_camera_bearings(rng, T_i_j, camera_a, camera_b, count=25)
+    bearings_j = bearings_j + rng.normal(0.0, 0.01, bearings_j.shape)  # off the constraint surface
+    correspondences = body_correspondences(camera_a, bearings_i, bearings_j, camera_b if two_cameras else None)
+    pose_i = random_pose(rng, 1.0, 10.0)
+    pose_j = pose_i.compose(gtsam.Pose3(T_i_j))
+
+    def residual(T_world_i, T_world_j):
+        return epipolar_error(T_world_i, T_world_j, correspondences)[0]
+
+    value, (jacobian_i, jacobian_j) = epipolar_error(pose_i, pose_j, correspondences, jacobians=True)
+    assert jacobian_i.shape == (25, 6) and jacobian_j.shape == (25, 6)
+    np.testing.assert_array_equal(value, residual(pose_i, pose_j))
+    # central differences err by O(delta^2 f'''): the Sampson residual has large third derivatives
+    # (a 2 cm baseline next to 5 m lever arms even more so), hence steps below the default 1e-5
+    delta = 1e-7 if motion == "short baseline" else 1e-6
+    assert_jacobian_close(jacobian_i, numericalDerivative21(residual, pose_i, pose_j, delta=delta))
+    assert_jacobian_close(jacobian_j, numericalDerivative22(residual, pose_i, pose_j, delta=delta))
+
+
+def test_sampson_jacobian_zero_baseline_is_finite():
+    rng = np.random.default_rng(0)
+    bearings = rng.normal(size=(5, 3))
+    bearings /= np.linalg.norm(bearings, axis=1, keepdims=True)
+    residual, jacobian = gec_sampson_jacobian(bearings, bearings, np.eye(3), np.zeros(3), np.array([1.0, 0.0, 2.0]))
+    assert np.all(residual == 0.0) and np.all(jacobian == 0.0)
+
+
+# ---------------------------------------------------------------------- GTSAM integration, shapes
+def test_linearize_shapes_and_survives_python_object():
+    rng = np.random.default_rng(5)
+    truth = articulated_truth(rng, pixel_noise_px=1.0)
+    graph = gtsam.NonlinearFactorGraph()
+    groups = truth.problem.on("tractor")
+
+    def add_factors():  # factors go out of Python scope; the graph keeps the C++ objects alive
+        for group in groups:
+            graph.add(GeneralizedEpipolarFactor(0, 1, group.camera.T_body_camera, group.bearings_i, group.bearings_j, robust_noise(SIGMA, len(group), 1.345)))
+
+    add_factors()
+    gc.collect()
+    values = _values(truth.tractor_i, truth.tractor_j)
+    linear = graph.linearize(values)
+    for index, group in enumerate(groups):
+        matrix, rhs = linear.at(index).jacobian()
+        assert matrix.shape == (len(group), 12) and rhs.shape == (len(group),)
+        expected, _ = epipolar_error(truth.tractor_i, truth.tractor_j, body_correspondences(group.camera.T_body_camera, group.bearings_i, group.bearings_j))
+        np.testing.assert_allclose(graph.at(index).unwhitenedError(values), expected, atol=1e-14)
+
+
+def test_factors_built_in_a_loop_keep_their_own_data():
+    rng = np.random.default_rng(9)
+    truth = articulated_truth(rng, pixel_noise_px=1.0)
+    values = _values(truth.tractor_i, truth.tractor_j.compose(random_pose(rng, 0.02, 0.1)))
+    built = [
+        GeneralizedEpipolarFactor(0, 1, group.camera.T_body_camera, group.bearings_i, group.bearings_j, robust_noise(SIGMA, len(group), None))
+        for group in truth.problem.correspondences
+    ]
+    for factor, group in zip(built, truth.problem.correspondences):
+        expected, _ = epipolar_error(truth.tractor_i, values.atPose3(1), body_correspondences(group.camera.T_body_camera, group.bearings_i, group.bearings_j))
+        np.testing.assert_array_equal(factor.unwhitenedError(values), expected)
+
+
+# ---------------------------------------------------------------------- guards
+GOOD = np.array([[0.0, 0.0, 1.0], [0.1, 0.0, 1.0], [0.0, 0.2, 1.0]])
+
+
+@pytest.mark.parametrize(
+    "bearings_i, bearings_j",
+    [
+        (GOOD[:, :2], GOOD[:, :2]),  # wrong shape
+        (GOOD[0], GOOD[0]),  # 1-D
+        (GOOD, GOOD[:2]),  # mismatched counts
+        (np.where(np.eye(3, dtype=bool), np.nan, GOOD), GOOD),  # NaN
+        (GOOD, np.vstack([GOOD[:2], np.zeros(3)])),  # zero length
+        (np.zeros((0, 3)), np.zeros((0, 3))),  # empty
+    ],
+)
+def test_bad_bearings_raise_bearing_error(bearings_i, bearings_j):
+    with pytest.raises(BearingError):
+        GeneralizedEpipolarFactor(0, 1, np.eye(4), bearings_i, bearings_j, robust_noise(SIGMA, 3, None))
+
+
+def test_other_bad_inputs_raise_value_error():
+    noise = robust_noise(SIGMA, 3, None)
+    with pytest.raises(ValueError, match="dimension"):
+        GeneralizedEpipolarFactor(0, 1, np.eye(4), GOOD, GOOD, robust_noise(SIGMA, 4, None))
+    with pytest.raises(ValueError, match="distinct"):
+        GeneralizedEpipolarFactor(2, 2, np.eye(4), GOOD, GOOD, noise)
+    with pytest.raises(ValueError, match="key"):
+        GeneralizedEpipolarFactor(-1, 2, np.eye(4), GOOD, GOOD, noise)
+    with pytest.raises(ValueError, match="rigid"):
+        GeneralizedEpipolarFactor(0, 1, 2.0 * np.eye(4), GOOD, GOOD, noise)
+    with pytest.raises(ValueError, match="4x4"):
+        GeneralizedEpipolarFactor(0, 1, np.eye(3), GOOD, GOOD, noise)
+    with pytest.raises(ValueError, match="noiseModel"):
+        GeneralizedEpipolarFactor(0, 1, np.eye(4), GOOD, GOOD, SIGMA)
+    with pytest.raises(ValueError):
+        robust_noise(-1.0, 3, 1.0)
+    with pytest.raises(ValueError):
+        robust_noise(SIGMA, 0, 1.0)
+
+
+# ---------------------------------------------------------------------- per-residual robust weighting
+def test_scalar_huber_downweights_only_the_outlier():
+    """One gross outlier among N residuals: Scalar reweighting scales its row alone; Block scales all."""
+    rng = np.random.default_rng(21)
+    truth = articulated_truth(rng, pixel_noise_px=0.5, points_per_body=60)
+    group = truth.problem.correspondences[0]
+    bearings_j = group.bearings_j.copy()
+    outlier = 7
+    bearings_j[outlier] = [0.3, -0.2, 1.0]
+    count = len(group)
+    values = _values(truth.tractor_i, truth.tractor_j)
+    rows = {}
+    for name, noise in {
+        "gaussian": robust_noise(SIGMA, count, None),
+        "scalar": robust_noise(SIGMA, count, 1.345),
+        "block": robust_noise(SIGMA, count, 1.345, per_residual=False),
+    }.items():
+        factor = GeneralizedEpipolarFactor(0, 1, group.camera.T_body_camera, group.bearings_i, bearings_j, noise)
+        rows[name] = factor.linearize(values).jacobian()[0]
+    whitened = np.abs(GeneralizedEpipolarFactor(0, 1, group.camera.T_body_camera, group.bearings_i, bearings_j, robust_noise(SIGMA, count, None)).whitenedError(values))
+    assert whitened[outlier] > 50.0 and np.max(np.delete(whitened, outlier)) < 1.345  # inliers inside the Huber core
+    weight = np.linalg.norm(rows["scalar"], axis=1) / np.linalg.norm(rows["gaussian"], axis=1)
+    np.testing.assert_allclose(np.delete(weight, outlier), 1.0, atol=1e-12)
+    np.testing.assert_allclose(weight[outlier], np.sqrt(1.345 / whitened[outlier]), rtol=1e-9)
+    block_weight = np.linalg.norm(rows["block"], axis=1) / np.linalg.norm(rows["gaussian"], axis=1)
+    assert np.all(block_weight < 0.5) and np.ptp(block_weight) < 1e-9  # every inlier loses weight too

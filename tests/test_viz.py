@@ -1,0 +1,96 @@
+"""Rerun recording: a small run is written headlessly, verifies with ``rerun rrd verify`` and reads
+back with the expected entities and components."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ampc_vo.errors import AmpcError
+from ampc_vo.geometry import make_pose, planar_pose
+from ampc_vo.observations import CameraObservations, FrameObservations
+from ampc_vo.rig import Body, Camera, Rig, camera_rotation
+from ampc_vo.viz import RerunLogger, VizConfig, recording_contents, verify_recording
+
+FRAMES = 6
+
+
+def small_rig() -> Rig:
+    cameras = (
+        Camera("front", "tractor", "pinhole", 64, 48, 50.0, 50.0, 31.5, 23.5, (), make_pose(camera_rotation(0.0), [3.0, 0.0, 2.5])),
+        Camera("rear", "trailer", "fisheye", 64, 48, 20.0, 20.0, 31.5, 23.5, (0.01,), make_pose(camera_rotation(np.pi), [-12.0, 0.0, 3.0])),
+    )
+    return Rig({"tractor": Body("tractor", 0.5), "trailer": Body("trailer", -8.0)}, cameras)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    path = tmp_path_factory.mktemp("viz") / "run" / "recording.rrd"
+    rng = np.random.default_rng(0)
+    with RerunLogger(small_rig(), path, VizConfig(trajectory_every=2)) as viz:
+        for frame in range(FRAMES):
+            pixels = rng.uniform(0, 48, size=(5, 2))
+            observations = FrameObservations(frame, 0.1 * frame, {
+                "front": CameraObservations("front", np.arange(5), pixels, np.tile([0.0, 0.0, 1.0], (5, 1))),
+                "rear": CameraObservations.empty("rear"),
+            })
+            viz.log_frame(
+                frame, 0.1 * frame,
+                T_world_tractor=planar_pose(1.0 * frame, 0.0, 0.01 * frame),
+                T_world_trailer=planar_pose(1.0 * frame - 1.0, 0.0, 0.0),
+                hitch_angle=0.05, hitch_sigma=0.01,
+                images={"front": rng.integers(0, 255, size=(48, 64), dtype=np.uint8), "rear": None},
+                observations=observations,
+                inliers={"front": np.array([True, True, False, True, False])},
+                truth_T_world_tractor=planar_pose(1.0 * frame, 0.1, 0.0),
+                truth_T_world_trailer=planar_pose(1.0 * frame - 1.0, 0.1, 0.0),
+                truth_hitch_angle=0.04,
+            )
+    return path
+
+
+def test_recording_verifies(recording):
+    assert "1 file verified without error" in verify_recording(recording)
+
+
+def test_recording_has_the_expected_entities(recording):
+    contents = recording_contents(recording)
+    frame_rows = {
+        "/world/tractor": "Transform3D:translation",
+        "/world/trailer": "Transform3D:translation",
+        "/world/truth/tractor": "Transform3D:translation",
+        "/world/tractor/front": "EncodedImage:blob",
+        "/world/tractor/front/features": "Points2D:positions",
+        "/plots/hitch_deg/estimate": "Scalars:scalars",
+        "/plots/hitch_deg/upper": "Scalars:scalars",
+        "/plots/hitch_deg/lower": "Scalars:scalars",
+        "/plots/hitch_deg/truth": "Scalars:scalars",
+    }
+    for entity, component in frame_rows.items():
+        assert contents.get(entity, {}).get(component) == FRAMES, (entity, contents.get(entity))
+    static = {
+        "/world/tractor/box": "Boxes3D:half_sizes",
+        "/world/trailer/box": "Boxes3D:half_sizes",
+        "/world/tractor/front": "Pinhole:image_from_camera",
+        "/world/trailer/rear": "Pinhole:image_from_camera",
+    }
+    for entity, component in static.items():
+        assert component in contents.get(entity, {}), (entity, contents.get(entity))
+    for trajectory in ("tractor_estimate", "tractor_truth", "trailer_estimate", "trailer_truth"):
+        assert "LineStrips3D:strips" in contents[f"/world/trajectory/{trajectory}"]
+    assert "/world/trailer/rear/features" in contents  # an empty camera still logs (no points)
+
+
+def test_empty_or_missing_recordings_fail_verification(tmp_path):
+    empty = tmp_path / "empty.rrd"
+    empty.write_bytes(b"")
+    with pytest.raises(AmpcError, match="0 files verified"):
+        verify_recording(empty)
+    with pytest.raises(AmpcError, match="not found"):
+        verify_recording(tmp_path / "missing.rrd")
+
+
+def test_wrong_inlier_mask_is_a_clear_error(tmp_path):
+    with RerunLogger(small_rig(), tmp_path / "bad.rrd") as viz:
+        observations = FrameObservations(0, 0.0, {"front": CameraObservations("front", np.arange(2), np.zeros((2, 2)), np.tile([0.0, 0.0, 1.0], (2, 1)))})
+        with pytest.raises(AmpcError, match="inlier mask"):
+            viz.log_frame(0, 0.0, observations=observations, inliers={"front": np.ones(3, bool)})
