@@ -21,8 +21,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ampc_vo.geometry import skew
-
 
 def _baseline(rotation: np.ndarray, translation: np.ndarray, center_i: np.ndarray, center_j: np.ndarray) -> np.ndarray:
     """``d = R c_j + t - c_i`` with shape (..., 3)."""
@@ -64,18 +62,15 @@ def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return (a * b) @ _ONES3
 
 
+# _skew(v) = v @ _SKEW_BASIS reshaped: [v]x = sum_k v_k [e_k]x
+_SKEW_BASIS = np.array(
+    [[0, 0, 0, 0, 0, -1, 0, 1, 0], [0, 0, 1, 0, 0, 0, -1, 0, 0], [0, -1, 0, 1, 0, 0, 0, 0, 0]], dtype=float
+)
+
+
 def _skew(vectors: np.ndarray) -> np.ndarray:
     """Cross-product matrices (..., 3, 3) of (..., 3) vectors: ``_skew(v) @ w == v x w``."""
-    if vectors.ndim == 1:
-        return skew(vectors)
-    matrices = np.zeros(vectors.shape[:-1] + (3, 3))
-    matrices[..., 0, 1] = -vectors[..., 2]
-    matrices[..., 0, 2] = vectors[..., 1]
-    matrices[..., 1, 0] = vectors[..., 2]
-    matrices[..., 1, 2] = -vectors[..., 0]
-    matrices[..., 2, 0] = -vectors[..., 1]
-    matrices[..., 2, 1] = vectors[..., 0]
-    return matrices
+    return (vectors @ _SKEW_BASIS).reshape(vectors.shape[:-1] + (3, 3))
 
 
 def _sampson_terms(
@@ -152,31 +147,29 @@ def gec_sampson_jacobian(
     rotated_j = bearings_j @ np.swapaxes(rotation, -1, -2)  # as in gec_sampson: identical values
     baseline = _baseline(rotation, translation, center_i, center_j)
     residual, grad_f, grad_g, norm = _sampson_terms(bearings_i, rotated_j, baseline)
-    valid = norm >= _MIN_SAMPSON_NORM
-    inv_norm = np.divide(1.0, norm, out=np.zeros_like(norm), where=valid)
-    sampson = residual / np.maximum(norm, _MIN_SAMPSON_NORM)  # exactly gec_sampson's value
-    s_over_n2 = sampson * inv_norm * inv_norm
-    alpha = (1.0 + 2.0 * sampson * residual * inv_norm) * inv_norm
+    clamped = np.maximum(norm, _MIN_SAMPSON_NORM)
+    sampson = residual / clamped  # exactly gec_sampson's value
+    inv_norm = (norm >= _MIN_SAMPSON_NORM) / clamped  # 0 where the residual is undefined
+    s_over_n = sampson * inv_norm
+    s_over_n2 = s_over_n * inv_norm
+    alpha = (1.0 + 2.0 * s_over_n * residual) * inv_norm
     g_dot_d = rotated_j @ baseline
     f_dot_d = bearings_i @ baseline
     g_dot_f = _rowdot(rotated_j, bearings_i)
+    s_g_dot_d = (s_over_n2 * g_dot_d)[:, None]
     gradients = np.empty((residual.shape[0], 6))
     # [:, :3] = g x (d s / d g) = alpha (d (g.f) - f (g.d)) + s/n^2 (g.d) (g x d)
-    gradients[:, :3] = (
-        (alpha * g_dot_f)[:, None] * baseline
-        - (alpha * g_dot_d)[:, None] * bearings_i
-        + (s_over_n2 * g_dot_d)[:, None] * grad_f
-    )
+    gradients[:, :3] = (alpha * g_dot_f)[:, None] * baseline - (alpha * g_dot_d)[:, None] * bearings_i + s_g_dot_d * grad_f
     # [:, 3:] = d s / d d = alpha f x g - s/n^2 (2 d - (g.d) g - (f.d) f)
     gradients[:, 3:] = (
         alpha[:, None] * _cross_rows(bearings_i, rotated_j)
-        + (s_over_n2 * g_dot_d)[:, None] * rotated_j
+        + s_g_dot_d * rotated_j
         + (s_over_n2 * f_dot_d)[:, None] * bearings_i
         - (2.0 * s_over_n2)[:, None] * baseline
     )
     # chain to xi = [omega, v] (row vectors): J_omega = (g x ds/dg) R - (ds/dd) R [c_j]x, J_v = (ds/dd) R
     chain = np.zeros((6, 6))
     chain[:3, :3] = rotation
-    chain[3:, :3] = -rotation @ skew(center_j)
+    chain[3:, :3] = rotation @ _skew(-center_j)
     chain[3:, 3:] = rotation
     return sampson, gradients @ chain

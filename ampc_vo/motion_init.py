@@ -20,7 +20,7 @@ from ampc_vo.observations import FrameObservations, match_tracks
 from ampc_vo.rig import Camera, Rig
 from ampc_vo.smoother import MotionInit, MotionStatus
 from ampc_vo.solvers import RansacConfig as SolverRansacConfig
-from ampc_vo.solvers import SolverStatus, TractorMotionEstimate, estimate_hitch_angles, estimate_tractor_motion
+from ampc_vo.solvers import SolverStatus, TractorMotionEstimate, ackermann_motion, estimate_hitch_angles, estimate_tractor_motion
 
 logger = logging.getLogger(__name__)
 
@@ -84,11 +84,11 @@ def _status(solver_status: SolverStatus) -> MotionStatus:
     return MotionStatus.TOO_FEW_TRACKS
 
 
-def _outlier_tracks(pairs: list[CameraPairs], inlier_masks: list[np.ndarray]) -> dict[str, np.ndarray]:
-    """Track ids RANSAC rejected, per camera (excluded from the smoother's factors)."""
+def _inlier_tracks(pairs: list[CameraPairs], inlier_masks: list[np.ndarray]) -> dict[str, np.ndarray]:
+    """Track ids RANSAC kept, per camera (the observations the smoother may use)."""
     if len(inlier_masks) != len(pairs):
         return {}
-    return {pair.camera.name: pair.track_ids[~np.asarray(mask, dtype=bool)] for pair, mask in zip(pairs, inlier_masks) if len(mask) == len(pair)}
+    return {pair.camera.name: pair.track_ids[np.asarray(mask, dtype=bool)] for pair, mask in zip(pairs, inlier_masks) if len(mask) == len(pair)}
 
 
 def straight_motion(chord: float) -> np.ndarray:
@@ -125,9 +125,11 @@ class MotionInitializer:
         self._rng = np.random.default_rng(config.ransac.seed)
         self.use_trailer = rig.has_trailer and config.mode != "tractor_only"
 
-    def tractor(self, first: FrameObservations, second: FrameObservations, predicted: np.ndarray) -> TractorMotion:
+    def tractor(self, first: FrameObservations, second: FrameObservations, predicted: np.ndarray, prediction_sigma: float | None = None) -> TractorMotion:
         """Tractor motion ``T_first_second``; ``predicted`` (constant velocity) fills what is unknown:
-        the chord in straight driving and everything when there are too few tracks."""
+        the chord in straight driving and everything when there are too few tracks. With
+        ``prediction_sigma`` (metres) the RANSAC chord is fused with the predicted one (the 2-point
+        chord is weak on gentle curves, DESIGN 2.3; trucks change speed slowly)."""
         pairs = camera_pairs(self.rig, "tractor", first, second)
         shared = sum(len(pair) for pair in pairs)
         predicted_chord = float(np.linalg.norm(predicted[:2, 3]))
@@ -139,17 +141,31 @@ class MotionInitializer:
             T_i_j = np.eye(4)
         elif status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and estimate.T_i_j is not None:
             T_i_j = estimate.T_i_j
+            if status is MotionStatus.OK and prediction_sigma is not None:
+                T_i_j = self._fuse_chord(estimate, predicted_chord, prediction_sigma)
         else:
             status = MotionStatus.TOO_FEW_TRACKS
             T_i_j = predicted
         return TractorMotion(T_i_j, status, estimate, shared)
 
+    def _fuse_chord(self, estimate: TractorMotionEstimate, predicted_chord: float, prediction_sigma: float) -> np.ndarray:
+        """Inverse-variance fusion of the RANSAC chord with the constant-velocity prediction; the yaw
+        change is kept and the motion rebuilt with the Ackermann model (DESIGN 2 (NH))."""
+        chord_sigma = estimate.chord_sigma if np.isfinite(estimate.chord_sigma) and estimate.chord_sigma > 0 else np.inf
+        weight_measured = 0.0 if not np.isfinite(chord_sigma) else 1.0 / chord_sigma**2
+        weight_predicted = 1.0 / prediction_sigma**2
+        chord = (weight_measured * abs(estimate.chord) + weight_predicted * predicted_chord) / (weight_measured + weight_predicted)
+        chord *= np.sign(estimate.chord) if estimate.chord != 0 else 1.0
+        return make_pose(*ackermann_motion(estimate.yaw_change, chord, self.rig.axle_x("tractor")))
+
     def keyframe(self, first: FrameObservations, second: FrameObservations, tractor: TractorMotion,
                  hitch_prior: float | None, predicted_trailer: np.ndarray | None = None) -> MotionInit:
         """The :class:`MotionInit` of a new keyframe given its tractor motion (see :meth:`tractor`)."""
-        outliers = _outlier_tracks(camera_pairs(self.rig, "tractor", first, second), tractor.estimate.inlier_masks)
+        inliers = {}
+        if tractor.status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE, MotionStatus.STANDSTILL):
+            inliers = _inlier_tracks(camera_pairs(self.rig, "tractor", first, second), tractor.estimate.inlier_masks)
         if not self.use_trailer:
-            return MotionInit(tractor.T_i_j, tractor.status, outlier_tracks=outliers)
+            return MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=inliers)
         hitch_prev = hitch = None
         trailer_status = MotionStatus.TOO_FEW_TRACKS
         trailer_pairs = camera_pairs(self.rig, "trailer", first, second)
@@ -163,7 +179,7 @@ class MotionInitializer:
             )
             if estimate.ok:
                 hitch_prev, hitch, trailer_status = estimate.hitch_angle_i, estimate.hitch_angle_j, MotionStatus.OK
-                outliers.update(_outlier_tracks(trailer_pairs, estimate.inlier_masks))
+                inliers.update(_inlier_tracks(trailer_pairs, estimate.inlier_masks))
         T_trailer = None
         if self.config.mode == "separate":
             predicted = predicted_trailer if predicted_trailer is not None else straight_motion(tractor.chord)
@@ -177,11 +193,11 @@ class MotionInitializer:
                     trailer_status = MotionStatus.TOO_FEW_TRACKS
                 if trailer_status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and own.T_i_j is not None:
                     T_trailer = own.T_i_j
-                    outliers.update(_outlier_tracks(trailer_pairs, own.inlier_masks))
+                    inliers.update(_inlier_tracks(trailer_pairs, own.inlier_masks))
                 else:
                     trailer_status = MotionStatus.TOO_FEW_TRACKS if trailer_status is not MotionStatus.STANDSTILL else trailer_status
                     T_trailer = predicted
-        return MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer, outliers)
+        return MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer, inlier_tracks=inliers)
 
 
 def hitch_trailer_motion(T_tractor: np.ndarray, hitch_i: float, hitch_j: float) -> np.ndarray:

@@ -129,7 +129,10 @@ class OdometryPipeline:
         if self._bootstrapping:
             return self._process_bootstrap(frame, elapsed)
         predicted = self._predicted(elapsed, self._velocity)
-        tractor = self.initializer.tractor(self._last_keyframe, frame, predicted)
+        # constant-speed prediction: sigma from the smooth-speed acceleration sigma (DESIGN 2.3)
+        acceleration = self.config.scale.smooth_speed_sigma_mps2 or 1.0
+        prediction_sigma = 0.05 + 2.0 * acceleration * elapsed * max(elapsed, 0.2)
+        tractor = self.initializer.tractor(self._last_keyframe, frame, predicted, prediction_sigma if self._velocity is not None else None)
         decision = self.policy.decide(tractor, elapsed)
         if not decision.is_keyframe:
             return []

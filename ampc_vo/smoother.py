@@ -42,6 +42,7 @@ import numpy as np
 from gtsam.symbol_shorthand import A, X, Y
 
 from ampc_vo.config import VoConfig
+from ampc_vo.errors import AmpcError
 from ampc_vo.epipolar import gec_sampson
 from ampc_vo.geometry import make_pose, relative_pose, rot_z, wrap_angle, yaw_of
 from ampc_vo.observations import FrameObservations, match_tracks
@@ -77,7 +78,7 @@ class MotionInit:
     hitch: float | None = None
     trailer_status: MotionStatus = MotionStatus.TOO_FEW_TRACKS
     T_trailer: np.ndarray | None = None
-    outlier_tracks: dict[str, np.ndarray] = field(default_factory=dict)  # per camera: RANSAC outliers of (k-1, k)
+    inlier_tracks: dict[str, np.ndarray] = field(default_factory=dict)  # per camera: RANSAC inliers of (k-1, k)
 
 
 @dataclass(frozen=True)
@@ -216,7 +217,10 @@ class ArticulatedSmoother:
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
         for key, stamp in pending.timestamps.items():
             stamps.insert((key, stamp))
-        self._smoother.update(pending.graph, pending.values, stamps)
+        try:
+            self._smoother.update(pending.graph, pending.values, stamps)
+        except RuntimeError as error:
+            self._recover(keyframe, pending, error)
         self._estimate = self._smoother.calculateEstimate()
         timing.optimisation = time.perf_counter() - started
         self._forget_old(keyframe.timestamp)
@@ -229,6 +233,26 @@ class ArticulatedSmoother:
         if lagged:
             return leaving
         return [self._publish(self._window[index], sigma if index == keyframe.index else None) for index in published_indices]
+
+    def _recover(self, keyframe: _Keyframe, pending: _Pending, error: RuntimeError) -> None:
+        """An ill-conditioned window (e.g. a keyframe whose factors were all rejected): anchor the new
+        keyframe to its initial values with moderate priors and optimise again (logged)."""
+        logger.warning("frame %d: smoother update failed (%s); anchoring the keyframe to its initial motion",
+                       keyframe.frame, str(error).strip().splitlines()[0])
+        k = keyframe.index
+        anchor = gtsam.NonlinearFactorGraph()
+        sigmas = _pose_sigmas(np.radians(0.5), 0.05)
+        keys = [X] + ([Y] if self.use_trailer and not self.joint else [])
+        for key in keys:
+            T_prior = relative_pose(pending.values.atPose3(key(k - 1)).matrix() if pending.values.exists(key(k - 1)) else self._estimate.atPose3(key(k - 1)).matrix(),
+                                    pending.values.atPose3(key(k)).matrix())
+            anchor.add(RelativePoseFactor(key(k - 1), key(k), T_prior, sigmas))
+        if self.joint:
+            anchor.add(gtsam.PriorFactorDouble(A(k), pending.values.atDouble(A(k)), gtsam.noiseModel.Isotropic.Sigma(1, np.radians(2.0))))
+        try:
+            self._smoother.update(anchor, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
+        except RuntimeError as second:
+            raise AmpcError(f"frame {keyframe.frame}: smoother failed twice ({str(second).strip().splitlines()[0]}); cannot continue") from None
 
     def flush(self) -> list[KeyframeEstimate]:
         """End of the stream: with ``output.publish: lagged`` the keyframes still in the window."""
@@ -426,13 +450,15 @@ class ArticulatedSmoother:
                 if first is None or second is None or len(first) == 0 or len(second) == 0:
                     continue
                 index_j, index_k = match_tracks(first, second)
-                excluded = keyframe.init.outlier_tracks.get(camera.name)
-                if excluded is not None and excluded.size:
-                    valid = ~np.isin(second.track_ids[index_k], excluded)
+                # per-observation outlier rejection: an observation is used only if the RANSAC of its
+                # keyframe's pair (k-1, k) kept it; without a RANSAC verdict the pose gate decides
+                verified_k = keyframe.init.inlier_tracks.get(camera.name)
+                if verified_k is not None:
+                    valid = np.isin(second.track_ids[index_k], verified_k)
                     index_j, index_k = index_j[valid], index_k[valid]
-                excluded = earlier.init.outlier_tracks.get(camera.name)
-                if excluded is not None and excluded.size:
-                    valid = ~np.isin(first.track_ids[index_j], excluded)
+                verified_j = earlier.init.inlier_tracks.get(camera.name)
+                if verified_j is not None and earlier.init.tractor_status is not MotionStatus.FIRST:
+                    valid = np.isin(first.track_ids[index_j], verified_j)
                     index_j, index_k = index_j[valid], index_k[valid]
                 if index_j.size < config.keyframes.min_tracks:
                     continue

@@ -6,6 +6,8 @@ factor by the norm of all N residuals, so one outlier down-weights every inlier 
 """
 from __future__ import annotations
 
+import numbers
+
 import gtsam
 
 from factors._checks import check_positive_scalar
@@ -22,9 +24,9 @@ def robust_noise(sigma: float, dim: int, huber_k: float | None = 1.345, *, per_r
     the ``Block`` scheme (for comparison only).
     """
     sigma = check_positive_scalar(sigma, "sigma")
-    if isinstance(dim, bool) or not isinstance(dim, int) or dim < 1:
+    if isinstance(dim, bool) or not isinstance(dim, numbers.Integral) or dim < 1:
         raise ValueError(f"dim must be a positive integer, got {dim!r}")
-    base = gtsam.noiseModel.Isotropic.Sigma(dim, sigma)
+    base = gtsam.noiseModel.Isotropic.Sigma(int(dim), sigma)
     if huber_k is None:
         return base
     huber_k = check_positive_scalar(huber_k, "huber_k")

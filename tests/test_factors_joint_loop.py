@@ -37,8 +37,7 @@ def test_sign_conventions():
     trailer = tractor.compose(hitch(0.3 + 0.01))  # trailer rotated 0.01 rad further counter-clockwise
     error, _ = joint_loop_error(tractor, trailer, 0.3)
     np.testing.assert_allclose(error, [0.0, 0.0, 0.01, 0.0, 0.0, 0.0], atol=1e-12)
-    separated = trailer.compose(gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, 0.0]))).compose(hitch(-0.01))
-    shifted = gtsam.Pose3(separated.rotation(), separated.translation() + separated.rotation().matrix() @ [0.2, 0.0, 0.0])
+    shifted = tractor.compose(hitch(0.3)).compose(gtsam.Pose3(gtsam.Rot3(), np.array([0.2, 0.0, 0.0])))  # trailer origin 0.2 m ahead
     error, _ = joint_loop_error(tractor, shifted, 0.3)
     np.testing.assert_allclose(error, [0.0, 0.0, 0.0, 0.2, 0.0, 0.0], atol=1e-12)  # metres, trailer frame
 

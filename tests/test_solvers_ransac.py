@@ -137,7 +137,7 @@ def test_degenerate_inputs_give_a_status_not_an_exception(rig: Rig) -> None:
     some_nan[::4] = np.nan
     some_nan[1] = 0.0
     result = estimate_tractor_motion([(some_nan, bearings_j, center)], axle)
-    assert result.ok and not result.inlier_masks[0][::4].any() and not result.inlier_masks[0][1]
+    assert result.status.usable and not result.inlier_masks[0][::4].any() and not result.inlier_masks[0][1]
     noise = np.random.default_rng(0).normal(size=(2, 80, 3))
     assert estimate_tractor_motion([(noise[0], noise[1], center)], axle).status is SolverStatus.NO_CONSENSUS
     trailer = problem.groups("trailer")

@@ -28,9 +28,12 @@ class RansacConfig:
     reported unobservable. ``prior_gate``: hitch hypotheses farther than this from
     the prior hitch angle are dropped when any hypothesis inside the gate exists.
     ``local_optimizations``: number of best hypotheses refined (LO-RANSAC); the lowest MSAC cost
-    after refinement wins. ``robust_refinement``: refine with the Cauchy loss over all points
-    instead of least squares over the inliers; ``refine_rounds``: its reweighting rounds, or the
-    inlier re-selection rounds of the least-squares refinement.
+    after refinement wins. ``chord_seeds``: the best hypothesis is also refined from its chord
+    times these factors (the chord is the weakly observed direction); a refined basin whose chord
+    differs by more than 3 sigma and whose MSAC cost is within ``ambiguity_points`` outliers'
+    worth (``threshold^2`` each) of the best makes the scale ambiguous (``SCALE_UNOBSERVABLE``):
+    the chord would hinge on single correspondences. ``refine_rounds``: inlier re-selection rounds of the tractor's
+    least-squares refinement, and reweighting rounds of the trailer's robust (Cauchy) refinement.
     """
 
     sampson_threshold: float = 0.004
@@ -49,7 +52,8 @@ class RansacConfig:
     refine: bool = True
     refine_rounds: int = 3
     local_optimizations: int = 3
-    robust_refinement: bool = False
+    chord_seeds: tuple[float, ...] = (0.5, 2.0)
+    ambiguity_points: float = 1.0
     refine_iterations: int = 15
     seed: int | None = 0
 

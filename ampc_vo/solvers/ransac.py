@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from ampc_vo.geometry import make_pose
-from ampc_vo.solvers.refine import refine_tractor, refine_trailer_yaw, sampson_residuals
+from ampc_vo.solvers.refine import refine_tractor, refine_tractor_batch, refine_trailer_yaw, sampson_residuals
 from ampc_vo.solvers.status import SolverStatus
 from ampc_vo.solvers.tractor import ackermann_motion, tractor_motion_2pt_batch, tractor_yaw_1pt_batch
 from ampc_vo.solvers.trailer import hitch_angles_1pt_batch, positive_depth, trailer_motion_from_yaw
@@ -138,22 +138,30 @@ def estimate_tractor_motion(
     scale_known = True
     if config.refine:
         # local optimisation: refine the best few hypotheses, keep the lowest MSAC cost (LO-RANSAC)
-        candidates = [h for h in pool[: config.local_optimizations] if np.sum(h[3]) >= config.min_inliers]
-        scale_known = False
-        for cost, refined_yaw, refined_chord, covariance, refined_rms, refined_inliers, start in sorted(
-            (_refine_tractor_hypothesis(groups, hypothesis, axle_x, config) for hypothesis in candidates), key=lambda item: item[0]
-        ):
-            refined_sigma = float(np.sqrt(covariance[1, 1])) if np.isfinite(covariance[1, 1]) else float("inf")
-            # a chord that changed sign or lost the consensus (cheirality) wandered along a flat cost
-            if (
-                chord_is_observable(refined_chord, refined_sigma, config) and refined_chord * start[2] > 0.0
-                and np.sum(refined_inliers) >= 0.8 * np.sum(start[3])
-            ):
-                scale_known, chord_sigma = True, refined_sigma
-                yaw_change, chord, rms, inliers = refined_yaw, refined_chord, refined_rms, refined_inliers
-                sign, yaw_sigma = (1.0 if chord >= 0 else -1.0), float(np.sqrt(covariance[0, 0]))
-                break
-            chord_sigma = refined_sigma if np.isnan(chord_sigma) else chord_sigma
+        candidates = list(pool[: config.local_optimizations])
+        # the chord is the weakly observed direction: also start from scaled chords of the best
+        for factor in config.chord_seeds:
+            seed_chord = pool[0][2] * factor
+            seed_cost, seed_inliers = _score(groups, *ackermann_motion(np.array([pool[0][1]]), np.array([seed_chord]), axle_x), config.sampson_threshold, 1)
+            candidates.append((float(seed_cost[0]), pool[0][1], seed_chord, seed_inliers[0]))
+        candidates = [h for h in candidates if np.sum(h[3]) >= config.min_inliers]
+        refined = sorted(_refine_tractor_hypotheses(groups, candidates, axle_x, config), key=lambda item: item[0])
+        best_cost, refined_yaw, refined_chord, covariance, refined_rms, refined_inliers, start = refined[0]
+        chord_sigma = float(np.sqrt(covariance[1, 1])) if np.isfinite(covariance[1, 1]) else float("inf")
+        # another basin with a clearly different chord and nearly the same cost: the scale is ambiguous
+        margin = config.ambiguity_points * config.sampson_threshold**2
+        ambiguous = any(
+            abs(other[2] - refined_chord) > max(3.0 * chord_sigma, 0.05 * abs(refined_chord)) and other[0] - best_cost < margin
+            for other in refined[1:]
+        )
+        # a chord that changed sign or lost the consensus (cheirality) wandered along a flat cost
+        scale_known = (
+            not ambiguous and chord_is_observable(refined_chord, chord_sigma, config) and refined_chord * start[2] > 0.0
+            and np.sum(refined_inliers) >= 0.8 * np.sum(start[3])
+        )
+        if scale_known:
+            yaw_change, chord, rms, inliers = refined_yaw, refined_chord, refined_rms, refined_inliers
+            sign, yaw_sigma = (1.0 if chord >= 0 else -1.0), float(np.sqrt(covariance[0, 0]))
     count = int(np.sum(inliers))
     if count < config.min_inliers:
         return TractorMotionEstimate(SolverStatus.NO_CONSENSUS, inlier_masks=empty_masks, num_hypotheses=drawn)
@@ -180,25 +188,32 @@ def estimate_tractor_motion(
     return TractorMotionEstimate(SolverStatus.OK, yaw_change, chord, T_i_j, masks, count, drawn, yaw_sigma, chord_sigma, sign, rms)
 
 
-def _refine_tractor_hypothesis(groups: Sequence[Group], hypothesis: tuple[float, float, float, np.ndarray], axle_x: float, config: RansacConfig):
-    """Refine one hypothesis ``(cost, yaw, chord, inliers)``; returns ``(MSAC cost, yaw, chord,
-    covariance, rms, inliers, hypothesis)`` of the refined model. Robust (Cauchy IRLS over all
-    points) or least squares over the inliers with re-selection, after ``config.robust_refinement``."""
-    _, yaw, chord, inliers = hypothesis
-    if config.robust_refinement:
-        yaw, chord, covariance, rms = refine_tractor(
-            groups, yaw, chord, axle_x, config.refine_iterations, robust_threshold=config.sampson_threshold, robust_rounds=config.refine_rounds
-        )
-        cost, scored = _score(groups, *ackermann_motion(np.array([yaw]), np.array([chord]), axle_x), config.sampson_threshold, check_top=1)
-        return float(cost[0]), yaw, chord, covariance, rms, scored[0], hypothesis
-    for _ in range(config.refine_rounds):
-        inlier_groups = [g.subset(m) for g, m in zip(groups, _split_flat(inliers, groups))]
-        yaw, chord, covariance, rms = refine_tractor(inlier_groups, yaw, chord, axle_x, config.refine_iterations)
-        cost, scored = _score(groups, *ackermann_motion(np.array([yaw]), np.array([chord]), axle_x), config.sampson_threshold, check_top=1)
-        if np.array_equal(scored[0], inliers):
+def _refine_tractor_hypotheses(
+    groups: Sequence[Group], candidates: Sequence[tuple[float, float, float, np.ndarray]], axle_x: float, config: RansacConfig
+) -> list[tuple[float, float, float, np.ndarray, float, np.ndarray, tuple]]:
+    """LO step: refine all hypotheses ``(cost, yaw, chord, inliers)`` together by least squares over
+    their inliers, re-selecting the inliers up to ``config.refine_rounds`` times. Returns, per
+    hypothesis, ``(MSAC cost, yaw, chord, covariance, rms, inliers, hypothesis)`` of the refined model."""
+    distinct: list[tuple[float, float, float, np.ndarray]] = []
+    for candidate in candidates:  # near-identical starts converge to the same basin
+        if not any(abs(candidate[1] - d[1]) < 1e-4 and abs(candidate[2] - d[2]) < 1e-3 * abs(d[2]) + 1e-6 for d in distinct):
+            distinct.append(candidate)
+    candidates = distinct
+    yaw = np.array([c[1] for c in candidates])
+    chord = np.array([c[2] for c in candidates])
+    masks = np.array([c[3] for c in candidates])
+    for _ in range(max(config.refine_rounds, 1)):
+        params, covariance, cost, used = refine_tractor_batch(groups, yaw, chord, masks, axle_x, config.refine_iterations)
+        yaw, chord = params[:, 0], params[:, 1]
+        msac, scored = _score(groups, *ackermann_motion(yaw, chord, axle_x), config.sampson_threshold, check_top=len(candidates))
+        if np.array_equal(scored, masks):
             break
-        inliers = scored[0]
-    return float(cost[0]), yaw, chord, covariance, rms, scored[0], hypothesis
+        masks = scored
+    rms = np.sqrt(cost / np.maximum(used, 1))
+    return [
+        (float(msac[k]), float(yaw[k]), float(chord[k]), covariance[k], float(rms[k]), scored[k], candidates[k])
+        for k in range(len(candidates))
+    ]
 
 
 def _split_flat(flat_mask: np.ndarray, groups: Sequence[Group]) -> list[np.ndarray]:

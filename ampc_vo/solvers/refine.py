@@ -4,7 +4,7 @@ Residuals are Sampson-normalised GEC residuals from :mod:`ampc_vo.epipolar` (pap
 (2), (6)); the parameters are minimal: tractor ``(phi, rho)`` with the Ackermann model, trailer
 ``psi`` with both hitch angles in closed form from the trailer non-holonomic constraint
 (DESIGN 2.2), or jointly ``(phi, rho, psi)``. A small Levenberg-Marquardt with a forward-difference
-Jacobian evaluates all perturbed parameter vectors in one broadcast call.
+Jacobian evaluates all perturbed parameter vectors (and several starts) in one broadcast call.
 """
 from __future__ import annotations
 
@@ -34,57 +34,87 @@ def sampson_residuals(groups: Sequence[Group], rotation: np.ndarray, translation
     return np.concatenate(parts, axis=-1)
 
 
-def levenberg_marquardt(
-    residual_batch: Callable[[np.ndarray], np.ndarray], initial: np.ndarray, iterations: int = 15, tolerance: float = 1e-6
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """Minimise ``sum r(x)^2`` from ``initial`` (P,). ``residual_batch`` maps (H, P) to (H, M).
+def levenberg_marquardt_batch(
+    residual_batch: Callable[[np.ndarray], np.ndarray],
+    initial: np.ndarray,
+    weights: np.ndarray | None = None,
+    iterations: int = 20,
+    tolerance: float = 1e-5,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Minimise ``sum_m w_km r_m(x_k)^2`` for K independent starts at once.
 
-    Each trial point is evaluated together with its P forward-difference neighbours in one
-    broadcast call, so an accepted step already carries its Jacobian. Stops when a step is below
-    ``tolerance * (1 + |x|)`` or the cost decreases by less than a relative 1e-9. Returns ``(x, covariance (P, P), rms)`` with
-    ``covariance = s^2 (J^T J)^-1``, ``s^2 = sum r^2 / (M - P)`` (NaN when singular or M <= P).
+    ``initial`` (K, P); ``residual_batch`` maps (H, P) parameter rows to (H, M) residuals;
+    ``weights`` (K, M) (e.g. 0/1 inlier masks) or None. Every iteration evaluates all K trial
+    points and their P forward-difference neighbours in ONE call (the Python overhead, not the
+    arithmetic, dominates at these sizes), so an accepted step already carries its Jacobian. A
+    start stops when its step is below ``tolerance * (1 + |x|)``, its cost decreases by less than
+    a relative 1e-7, or its damping explodes.
+
+    Returns ``(x (K, P), covariance (K, P, P), cost (K,), count (K,))``: covariance
+    ``s^2 (J^T W J)^-1`` with ``s^2 = cost / (count - P)``, ``count`` the number of non-zero weights.
     """
-    x = np.asarray(initial, dtype=float).copy()
-    count = x.size
-    steps = _DIFFERENCE_STEP * np.maximum(1.0, np.abs(x))
-    offsets = np.vstack([np.zeros(count), np.diag(steps)])
+    x = np.array(initial, dtype=float, ndmin=2)
+    starts, count = x.shape
+    steps = _DIFFERENCE_STEP * np.maximum(1.0, np.abs(x))  # (K, P)
+    offsets = np.concatenate([np.zeros((starts, 1, count)), steps[:, :, None] * np.eye(count)[None]], axis=1)  # (K, P+1, P)
 
-    def evaluate(point: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        values = residual_batch(point + offsets)
-        residual = values[0]
-        return residual, (values[1:] - residual).T / steps, float(residual @ residual)
+    def evaluate(points: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Residuals, Jacobians and costs of the starts ``rows`` at ``points`` (len(rows), P)."""
+        values = residual_batch((points[:, None, :] + offsets[rows]).reshape(-1, count)).reshape(len(rows), count + 1, -1)
+        if weights is not None:
+            values = values * root_weights[rows][:, None, :]
+        residual = values[:, 0]
+        jacobian = np.swapaxes(values[:, 1:] - residual[:, None], 1, 2) / steps[rows][:, None, :]  # (K, M, P)
+        return residual, jacobian, np.einsum("km,km->k", residual, residual)
 
-    residual, jacobian, cost = evaluate(x)
-    damping = 1e-4
+    root_weights = None if weights is None else np.sqrt(np.asarray(weights, dtype=float))
+    residual, jacobian, cost = evaluate(x, np.arange(starts))
+    damping = np.full(starts, 1e-4)
+    active = np.isfinite(cost)
+    identity = np.eye(count)
     for _ in range(iterations):
-        normal = jacobian.T @ jacobian
-        gradient = jacobian.T @ residual
-        accepted = False
-        for _ in range(5):
-            try:
-                step = -np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12), gradient)
-            except np.linalg.LinAlgError:
-                break
-            trial = evaluate(x + step)
-            if np.isfinite(trial[2]) and trial[2] <= cost:
-                x = x + step
-                decrease = cost - trial[2]
-                residual, jacobian, cost = trial
-                damping = max(damping / 10.0, 1e-9)
-                accepted = True
-                break
-            damping *= 10.0
-        if not accepted or decrease <= 1e-9 * cost or np.all(np.abs(step) <= tolerance * (1.0 + np.abs(x))):
+        if not np.any(active):
             break
-    dof = residual.size - count
-    covariance = np.full((count, count), np.nan)
-    if dof > 0 and np.isfinite(cost):
+        normal = np.einsum("kmp,kmq->kpq", jacobian, jacobian)
+        gradient = np.einsum("kmp,km->kp", jacobian, residual)
+        diagonal = np.einsum("kpp->kp", normal)[:, :, None] * identity + 1e-12 * identity
         try:
-            covariance = np.linalg.inv(jacobian.T @ jacobian) * cost / dof
+            step = -np.linalg.solve(normal + damping[:, None, None] * diagonal, gradient[..., None])[..., 0]
         except np.linalg.LinAlgError:
-            pass
-    rms = float(np.sqrt(cost / max(residual.size, 1)))
-    return x, covariance, rms
+            break
+        step[~active] = 0.0
+        rows = np.flatnonzero(active)
+        trial_residual, trial_jacobian, trial_cost = evaluate(x[rows] + step[rows], rows)
+        better = np.isfinite(trial_cost) & (trial_cost <= cost[rows])
+        accepted = np.zeros(starts, dtype=bool)
+        accepted[rows[better]] = True
+        decrease = np.zeros(starts)
+        decrease[rows[better]] = cost[rows[better]] - trial_cost[better]
+        x[accepted] += step[accepted]
+        residual[accepted], jacobian[accepted], cost[accepted] = trial_residual[better], trial_jacobian[better], trial_cost[better]
+        damping = np.where(accepted, np.maximum(damping / 10.0, 1e-9), damping * 10.0)
+        small_step = np.all(np.abs(step) <= tolerance * (1.0 + np.abs(x)), axis=1)
+        converged = accepted & ((decrease <= 1e-7 * cost) | small_step)
+        active &= ~converged & (damping < 1e8)
+    used = np.full(starts, residual.shape[1]) if weights is None else np.count_nonzero(root_weights, axis=1)
+    covariance = np.full((starts, count, count), np.nan)
+    for k in range(starts):
+        if used[k] > count and np.isfinite(cost[k]):
+            try:
+                covariance[k] = np.linalg.inv(jacobian[k].T @ jacobian[k]) * cost[k] / (used[k] - count)
+            except np.linalg.LinAlgError:
+                pass
+    return x, covariance, cost, used
+
+
+def levenberg_marquardt(
+    residual_batch: Callable[[np.ndarray], np.ndarray], initial: np.ndarray, iterations: int = 20, tolerance: float = 1e-5
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Minimise ``sum r(x)^2`` from one start ``initial`` (P,) (:func:`levenberg_marquardt_batch`).
+
+    Returns ``(x, covariance (P, P), rms)``."""
+    x, covariance, cost, used = levenberg_marquardt_batch(residual_batch, np.asarray(initial, dtype=float)[None], None, iterations, tolerance)
+    return x[0], covariance[0], float(np.sqrt(cost[0] / max(int(used[0]), 1)))
 
 
 def robust_least_squares(
@@ -132,6 +162,19 @@ def refine_tractor(
     else:
         params, covariance, rms = robust_least_squares(residual_batch, initial, robust_threshold, robust_rounds, iterations)
     return float(params[0]), (chord if fix_chord else float(params[1])), covariance, rms
+
+
+def refine_tractor_batch(
+    groups: Sequence[Group], yaw_change: np.ndarray, chord: np.ndarray, inlier_masks: np.ndarray, axle_x: float, iterations: int = 20
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares refinement of K Ackermann hypotheses ``(phi_k, rho_k)`` at once, each over its
+    own inliers (``inlier_masks`` (K, M) over the groups' stacked correspondences), DESIGN 2.1.
+    Returns ``(params (K, 2), covariance (K, 2, 2), cost (K,), inlier count (K,))``."""
+    def residual_batch(params: np.ndarray) -> np.ndarray:
+        return sampson_residuals(groups, *ackermann_motion(params[:, 0], params[:, 1], axle_x))
+
+    initial = np.stack([np.asarray(yaw_change, dtype=float), np.asarray(chord, dtype=float)], axis=1)
+    return levenberg_marquardt_batch(residual_batch, initial, inlier_masks, iterations)
 
 
 def refine_trailer_yaw(

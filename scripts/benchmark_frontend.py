@@ -1,0 +1,110 @@
+#!/usr/bin/env python
+"""Time the image frontend: milliseconds per frame and per camera frame, with the breakdown
+detect / track (KLT forward-backward) / reject (epipolar RANSAC) / unproject.
+
+    python scripts/benchmark_frontend.py [DATASET] [--frames N] [--threads T] [--max-features K]
+
+DATASET: one of our dataset folders with images (e.g. written by simulate_sequence.py) or a KITTI
+odometry folder (then left-right stereo matching is timed too). Without DATASET, 4 cameras of
+640x480 see a synthetic texture moving by a few pixels per frame. Images are loaded before timing.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ampc_vo.errors import AmpcError
+from ampc_vo.frontend import MultiCameraFrontend, TrackerConfig
+from ampc_vo.rig import Body, Camera, Rig
+
+STAGES = ("detect", "track", "reject", "unproject")
+
+
+def synthetic_frames(count: int, cameras: int = 4, width: int = 640, height: int = 480) -> tuple[Rig, list[dict[str, np.ndarray]]]:
+    """``count`` frames of ``cameras`` pinhole cameras looking at moving random plane waves."""
+    rng = np.random.default_rng(0)
+    waves = 60
+    frequency = rng.uniform(-0.25, 0.25, size=(cameras, waves, 2))
+    phase = rng.uniform(0.0, 2.0 * np.pi, size=(cameras, waves))
+    rig = Rig({"tractor": Body("tractor", 1.0)}, tuple(Camera(f"cam{index}", "tractor", "pinhole", width, height, 500.0, 500.0, width / 2 - 0.5, height / 2 - 0.5) for index in range(cameras)))
+    frames = []
+    for frame in range(count):
+        images = {}
+        for index, camera in enumerate(rig.cameras):
+            shift = frame * np.array([2.0 + index, 0.7 * index - 1.0])
+            along_x = frequency[index, :, 0:1] * (np.arange(width) - shift[0]) + phase[index, :, None]
+            along_y = frequency[index, :, 1:2] * (np.arange(height) - shift[1])
+            wave = np.cos(along_y).T @ np.cos(along_x) - np.sin(along_y).T @ np.sin(along_x)
+            images[camera.name] = np.clip(128 + 12 * wave, 0, 255).astype(np.uint8)
+        frames.append(images)
+    return rig, frames
+
+
+def dataset_frames(path: Path, count: int) -> tuple[Rig, list[dict[str, np.ndarray | None]], tuple[tuple[str, str], ...]]:
+    from ampc_vo.datasets.kitti import is_kitti_folder, load_kitti
+
+    if is_kitti_folder(path):
+        dataset = load_kitti(path)
+        return dataset.rig, [dataset.images(k) for k in range(min(count, len(dataset)))], (("left", "right"),)
+    from ampc_vo.datasets.folder import read_dataset
+
+    dataset = read_dataset(path, load_measurements_file=False)
+    if not dataset.has_images:
+        raise AmpcError(f"{path}: dataset has no images (simulate it without --no-images)")
+    frames = [{camera: dataset.load_image(k, camera) for camera in dataset.camera_names} for k in range(min(count, len(dataset)))]
+    return dataset.rig, frames, ()
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("dataset", type=Path, nargs="?", help="dataset folder with images or KITTI folder (default: synthetic)")
+    parser.add_argument("--frames", type=int, default=60)
+    parser.add_argument("--threads", type=int, default=1, help="cameras tracked in parallel threads")
+    parser.add_argument("--max-features", type=int, default=TrackerConfig().max_features)
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        if args.dataset is None:
+            rig, frames = synthetic_frames(args.frames)
+            stereo_pairs: tuple[tuple[str, str], ...] = ()
+            source = "synthetic"
+        else:
+            rig, frames, stereo_pairs = dataset_frames(args.dataset, args.frames)
+            source = str(args.dataset)
+    except AmpcError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    config = TrackerConfig(max_features=args.max_features)
+    frontend = MultiCameraFrontend(rig, config, stereo_pairs=stereo_pairs, threads=args.threads)
+    frontend.process(-1, 0.0, frames[0])  # warm-up (first detection, OpenCV initialisation)
+    wall, stage_ms, features = [], {stage: [] for stage in STAGES}, []
+    for index, images in enumerate(frames[1:], start=1):
+        start = time.perf_counter()
+        result = frontend.process_with_details(index, 0.1 * index, images)
+        wall.append(time.perf_counter() - start)
+        for stage in STAGES:
+            stage_ms[stage].append(sum(report.timings_ms.get(stage, 0.0) for report in result.reports.values()))
+        features.append(np.mean([len(obs) for obs in result.observations.cameras.values()]))
+    frontend.close()
+    cameras = len(rig.cameras)
+    size = f"{rig.cameras[0].width}x{rig.cameras[0].height}"
+    wall_ms = 1e3 * np.array(wall)
+    print(f"frontend on {source}: {len(wall)} frames, {cameras} cameras of {size}, {args.threads} thread(s), "
+          f"{np.mean(features):.0f} features per camera")
+    print(f"  per frame        median {np.median(wall_ms):6.1f} ms   mean {np.mean(wall_ms):6.1f} ms   p90 {np.percentile(wall_ms, 90):6.1f} ms")
+    print(f"  per camera frame median {np.median(wall_ms) / cameras:6.1f} ms")
+    print("  breakdown per camera frame (mean, ms; summed over cameras / cameras):")
+    for stage in STAGES:
+        print(f"    {stage:<10s} {np.mean(stage_ms[stage]) / cameras:6.2f}")
+    accounted = sum(np.mean(stage_ms[stage]) for stage in STAGES)
+    print(f"    {'other':<10s} {(np.mean(wall_ms) - accounted) / cameras:6.2f}   (validation, bookkeeping{', stereo matching' if stereo_pairs else ''}; negative with threads)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,83 @@
+#!/usr/bin/env python3
+"""Benchmark the renderer: ms per 640x480 camera frame (pinhole and fisheye rigs) on the default
+route's scene, and the wall time of rendering a whole sequence with worker processes.
+
+    PYTHONPATH=. python scripts/benchmark_render.py [--config configs/sim/demo.yaml] [--frames 20]
+                                                    [--sequence-frames 40] [--processes 2]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # numpy matmuls here are tiny: threads only add overhead
+
+import numpy as np  # noqa: E402
+
+REPOSITORY_ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPOSITORY_ROOT))
+
+from ampc_vo.kinematics import Trajectory, simulate_kinematics  # noqa: E402
+from ampc_vo.render import Renderer, RenderOptions, render_sequence  # noqa: E402
+from ampc_vo.rig import load_rig  # noqa: E402
+from ampc_vo.scene import build_scene  # noqa: E402
+from ampc_vo.sim_config import load_sim_config  # noqa: E402
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", default=str(REPOSITORY_ROOT / "configs" / "sim" / "demo.yaml"))
+    parser.add_argument("--frames", type=int, default=20, help="frames sampled along the route for the per-frame timing")
+    parser.add_argument("--sequence-frames", type=int, default=40, help="frames of the whole-sequence timing (0: skip)")
+    parser.add_argument("--processes", type=int, default=2)
+    args = parser.parse_args()
+
+    config = load_sim_config(args.config)
+    rig = config.load_rig()
+    trajectory = simulate_kinematics(config.route, config.rate_hz, rig.axle_x("tractor"), rig.axle_x("trailer"),
+                                     config.initial_hitch_angle, config.duration)
+    started = time.perf_counter()
+    scene = build_scene(trajectory, np.random.default_rng(config.seed), config.scene)
+    renderer = Renderer(scene, None, RenderOptions())
+    print(f"scene: {len(scene.quads)} quads ({len(renderer.quads)} pieces after splitting); "
+          f"textures + setup {time.perf_counter() - started:.2f} s; route {len(trajectory)} frames")
+
+    frames = np.linspace(0, len(trajectory) - 1, args.frames).astype(int)
+    for rig_name in ("default", "fisheye"):
+        rig_variant = load_rig(REPOSITORY_ROOT / "configs" / "rigs" / f"{rig_name}.yaml")
+        for camera in rig_variant.cameras:
+            renderer.rays_of(camera)  # per-camera precomputation, once
+        wall, cpu = [], []
+        for frame in frames:
+            for camera in rig_variant.cameras:
+                pose = trajectory.pose(camera.body)[frame] @ camera.T_body_camera
+                wall_start, cpu_start = time.perf_counter(), time.process_time()
+                renderer.render(camera, pose)
+                wall.append(time.perf_counter() - wall_start)
+                cpu.append(time.process_time() - cpu_start)
+        wall_ms, cpu_ms = 1000 * np.array(wall), 1000 * np.array(cpu)
+        size = f"{rig_variant.cameras[0].width}x{rig_variant.cameras[0].height}"
+        print(f"{rig_name:8s} rig ({size}, {len(wall_ms)} camera frames): wall median {np.median(wall_ms):.1f} ms, "
+              f"p90 {np.percentile(wall_ms, 90):.1f} ms; CPU median {np.median(cpu_ms):.1f} ms")
+
+    if args.sequence_frames > 0:
+        count = min(args.sequence_frames, len(trajectory))
+        part = Trajectory(trajectory.timestamps[:count], trajectory.T_world_tractor[:count],
+                          trajectory.T_world_trailer[:count], trajectory.hitch_angle[:count])
+        options = RenderOptions(processes=args.processes)
+        with tempfile.TemporaryDirectory() as out_dir:
+            started = time.perf_counter()
+            render_sequence(out_dir, rig, part, scene, options, progress=False, renderer=renderer)
+            elapsed = time.perf_counter() - started
+        images = count * len(rig.cameras)
+        print(f"sequence: {count} frames x {len(rig.cameras)} cameras = {images} PNGs in {elapsed:.1f} s with "
+              f"{options.processes} processes ({1000 * elapsed / images:.0f} ms per image; "
+              f"a 60 s, 10 Hz, 4-camera sequence would take ~{2400 * elapsed / images / 60:.1f} min)")
+
+
+if __name__ == "__main__":
+    main()
