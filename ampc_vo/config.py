@@ -111,7 +111,7 @@ class ScaleConfig:
     """Aids for metric scale (DESIGN 2.3): a smooth-speed prior between consecutive keyframes
     (``null`` disables it) and the optional wheel-speed factor (off by default)."""
 
-    smooth_speed_sigma_mps2: float | None = 0.5
+    smooth_speed_sigma_mps2: float | None = 1.0
     wheel_speed: bool = False
     wheel_speed_sigma_m: float = 0.05
     bootstrap_pairs: int = 3

@@ -22,10 +22,12 @@ correspondences of an overlapping pair (KITTI left/right) for the two-camera epi
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -77,6 +79,39 @@ class TrackerConfig:
             raise ConfigError(f"frontend: quality_level must be in (0, 1), got {self.quality_level}")
         if self.fb_threshold_px <= 0.0 or self.ransac_threshold_px <= 0.0 or self.min_distance_px <= 0.0:
             raise ConfigError("frontend: fb_threshold_px, ransac_threshold_px and min_distance_px must be positive")
+
+
+def _config_from_dict(kind: type, raw: dict[str, Any] | None, source: str) -> Any:
+    """A frozen config dataclass from a YAML mapping; unknown keys and bad values raise ConfigError."""
+    if raw is None:
+        return kind()
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{source}: expected a mapping of {kind.__name__} settings, got {type(raw).__name__}")
+    fields = {item.name: item for item in dataclasses.fields(kind)}
+    unknown = sorted(set(raw) - set(fields))
+    if unknown:
+        raise ConfigError(f"{source}: unknown setting(s) {unknown}; known: {sorted(fields)}")
+    values = {}
+    for name, value in raw.items():
+        cast = int if isinstance(getattr(kind(), name), int) else float
+        try:
+            values[name] = cast(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{source}: {name}: expected a number, got {value!r}") from None
+    try:
+        return kind(**values)
+    except ConfigError as error:
+        raise ConfigError(f"{source}: {error}") from None
+
+
+def tracker_config_from_dict(raw: dict[str, Any] | None, source: str = "frontend") -> "TrackerConfig":
+    """:class:`TrackerConfig` from a config mapping (e.g. the ``frontend`` section of a VO config)."""
+    return _config_from_dict(TrackerConfig, raw, source)
+
+
+def stereo_config_from_dict(raw: dict[str, Any] | None, source: str = "stereo") -> "StereoConfig":
+    """:class:`StereoConfig` from a config mapping."""
+    return _config_from_dict(StereoConfig, raw, source)
 
 
 @dataclass
@@ -285,6 +320,7 @@ class CameraTracker:
         self._rng = np.random.default_rng(self.config.seed)
         self._next_id = 0
         self._pixels = np.zeros((0, 2))
+        self._bearings = np.zeros((0, 3))
         self._ids = np.zeros(0, np.int64)
         self.last_report = TrackingReport()
         self.previous_image: np.ndarray | None = None  # grey image of the last tracked frame (stereo, viz)
@@ -304,6 +340,7 @@ class CameraTracker:
             logger.warning("camera %s: re-initialising tracking (%s)", self.camera.name, reason)
         self.previous_image = None
         self._pixels = np.zeros((0, 2))
+        self._bearings = np.zeros((0, 3))
         self._ids = np.zeros(0, np.int64)
 
     def _new_ids(self, count: int) -> np.ndarray:
@@ -343,7 +380,7 @@ class CameraTracker:
                 report.tracked = 0
             else:
                 pixels, ids = tracked[good], self._ids[good]
-                previous_pixels = self._pixels[good]
+                previous_bearings = self._bearings[good]
         report.timings_ms["track"] = (time.perf_counter() - clock) * 1e3
 
         clock = time.perf_counter()
@@ -352,7 +389,6 @@ class CameraTracker:
 
         clock = time.perf_counter()
         if len(pixels) >= config.min_tracks_for_ransac:
-            previous_bearings = self.camera.unproject(previous_pixels)
             threshold = config.ransac_threshold_px / max(self.camera.fx, self.camera.fy)
             inliers = epipolar_inliers(previous_bearings, bearings, threshold, config.ransac_iterations, self._rng)
             report.rejected = int((~inliers).sum())
@@ -376,7 +412,7 @@ class CameraTracker:
         if len(pixels) == 0:
             logger.warning("camera %s: no features found in frame", self.camera.name)
 
-        self._pixels, self._ids = pixels, ids
+        self._pixels, self._bearings, self._ids = pixels, bearings, ids
         self.previous_image = gray
         return CameraObservations(self.camera.name, ids.copy(), pixels.copy(), bearings)
 
@@ -390,16 +426,23 @@ class CameraTracker:
         budget = config.max_features - len(existing)
         if budget <= 0 or quota.sum() == 0:
             return np.zeros((0, 2))
-        mask = detection_mask(existing, self.image_size, config.min_distance_px)
+        # Only the bounding box of the cells that need features is searched (GFTT's cost is per pixel).
+        width, height = self.image_size
+        needy_rows, needy_cols = np.nonzero(quota.reshape(config.grid_rows, config.grid_cols))
+        x0 = int(needy_cols.min() * width / config.grid_cols)
+        x1 = int(np.ceil((needy_cols.max() + 1) * width / config.grid_cols))
+        y0 = int(needy_rows.min() * height / config.grid_rows)
+        y1 = int(np.ceil((needy_rows.max() + 1) * height / config.grid_rows))
+        mask = detection_mask(existing, self.image_size, config.min_distance_px)[y0:y1, x0:x1]
         corners = cv2.goodFeaturesToTrack(
-            gray, maxCorners=int(min(4 * quota.sum(), 4 * config.max_features)), qualityLevel=config.quality_level,
-            minDistance=config.min_distance_px, mask=mask, blockSize=config.block_size,
+            np.ascontiguousarray(gray[y0:y1, x0:x1]), maxCorners=int(min(4 * quota.sum(), 4 * config.max_features)),
+            qualityLevel=config.quality_level, minDistance=config.min_distance_px, mask=np.ascontiguousarray(mask),
+            blockSize=config.block_size,
         )
         if corners is None:
             return np.zeros((0, 2))
-        corners = corners.reshape(-1, 2).astype(float)
+        corners = corners.reshape(-1, 2).astype(float) + [x0, y0]
         border = config.border_px
-        width, height = self.image_size
         inside = (corners[:, 0] >= border) & (corners[:, 0] <= width - 1 - border) & (corners[:, 1] >= border) & (corners[:, 1] <= height - 1 - border)
         corners = corners[inside]
         keep = select_per_cell(grid_cells(corners, self.image_size, config.grid_rows, config.grid_cols), quota)

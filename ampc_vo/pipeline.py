@@ -131,7 +131,8 @@ class OdometryPipeline:
         predicted = self._predicted(elapsed, self._velocity)
         # constant-speed prediction: sigma from the smooth-speed acceleration sigma (DESIGN 2.3)
         acceleration = self.config.scale.smooth_speed_sigma_mps2 or 1.0
-        prediction_sigma = 0.05 + 2.0 * acceleration * elapsed * max(elapsed, 0.2)
+        predicted_chord = float(np.linalg.norm(predicted[:2, 3]))
+        prediction_sigma = 0.1 + 0.25 * predicted_chord + acceleration * elapsed**2
         tractor = self.initializer.tractor(self._last_keyframe, frame, predicted, prediction_sigma if self._velocity is not None else None)
         decision = self.policy.decide(tractor, elapsed)
         if not decision.is_keyframe:

@@ -350,10 +350,11 @@ class Renderer:
             textures = load_textures(seed=self.options.seed)
         self.atlas = textures if isinstance(textures, TextureAtlas) else build_atlas(textures)
         self.quads = prepare_quads(scene.quads, self.atlas, self.options)
-        self._rays: dict[int, CameraRays] = {}
+        self._rays: dict[tuple, CameraRays] = {}
 
     def rays_of(self, camera: Camera) -> CameraRays:
-        key = id(camera)
+        key = (camera.name, camera.model, camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
+               tuple(camera.distortion))
         if key not in self._rays:
             self._rays[key] = camera_rays(camera, self.options.tile_size)
         return self._rays[key]
@@ -688,7 +689,8 @@ def render_sequence(out_dir: str | Path, rig: Rig, trajectory: Any, scene: Scene
     """Render every camera at every frame of ``trajectory`` into ``out_dir/images/<camera>/<frame:06d>.png``.
 
     ``trajectory`` needs ``timestamps`` (F,) and ``pose(body)`` -> (F, 4, 4) (``kinematics.Trajectory``).
-    Frames are spread over ``options.processes`` worker processes (fork). Returns the relative image
+    Frames are spread over ``options.processes`` worker processes (spawned: forking a process whose
+    OpenCV thread pool has run deadlocks the children). Returns the relative image
     paths per frame (rig camera order), as ``frames.csv`` lists them.
     """
     options = options or RenderOptions()
@@ -696,7 +698,7 @@ def render_sequence(out_dir: str | Path, rig: Rig, trajectory: Any, scene: Scene
     for camera in rig.cameras:
         (out_dir / "images" / camera.name).mkdir(parents=True, exist_ok=True)
     renderer = renderer or Renderer(scene, None, options)
-    for camera in rig.cameras:  # precompute rays once, before forking
+    for camera in rig.cameras:  # precompute rays once (the workers receive them with the renderer)
         renderer.rays_of(camera)
     frames = range(len(trajectory))
     processes = max(1, min(options.processes, os.cpu_count() or 1, len(frames)))
@@ -711,7 +713,7 @@ def render_sequence(out_dir: str | Path, rig: Rig, trajectory: Any, scene: Scene
             if bar is not None:
                 bar.update(1)
     else:
-        context = multiprocessing.get_context("fork")
+        context = multiprocessing.get_context("spawn")
         with context.Pool(processes, initializer=_worker_init, initargs=(renderer, rig, trajectory, out_dir)) as pool:
             for _ in pool.imap_unordered(_worker_frame, frames, chunksize=4):
                 if bar is not None:

@@ -8,10 +8,15 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 logger = logging.getLogger(__name__)
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ampc_vo.kinematics import Trajectory
+    from ampc_vo.sim_config import SceneConfig
 
 QUAD_KINDS = ("road", "ground", "facade", "box", "pole", "marker")
 
@@ -111,10 +116,8 @@ def swept_path_points(T_world_tractor: np.ndarray, T_world_trailer: np.ndarray, 
             parts.append(poses[:, :2, 3] + body_x * poses[:, :2, 0])
     if centerline is not None:
         parts.append(centerline.points[:, :2])
-    points = np.concatenate(parts)
-    # Densify between consecutive samples of each part is unnecessary: frames are <= ~1.5 m apart
-    # and the corridor check keeps a margin; see build_scene.
-    return points
+    # Frames are at most ~2 m apart; build_scene adds a 0.5 m margin to the clearance for the gaps.
+    return np.concatenate(parts)
 
 
 def _strip_quads(centerline: Centerline, lateral_from: float, lateral_to: float, z: float, kind: str, texture: str, texture_scale: float) -> list[Quad]:
@@ -159,7 +162,7 @@ def box_quads(center: np.ndarray, yaw: float, size: tuple[float, float, float], 
     return quads
 
 
-def build_scene(trajectory, rng: np.random.Generator, config=None) -> Scene:
+def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "SceneConfig | None" = None) -> Scene:
     """Procedural world along a trajectory (``kinematics.Trajectory``) for rendering and landmarks.
 
     Quads: one large grass ``ground`` plane (z = 0), gravel shoulders and the asphalt ``road`` strip

@@ -40,7 +40,7 @@ from ampc_vo.geometry import invert_pose
 from ampc_vo.kinematics import Trajectory, simulate_kinematics
 from ampc_vo.measurements import MEASUREMENTS_FILE, Measurements, load_measurements, save_measurements
 from ampc_vo.rig import Rig
-from ampc_vo.scene import Quad, Scene, build_scene
+from ampc_vo.scene import Scene, build_scene
 from ampc_vo.sim_config import SceneConfig, SimulationConfig, load_sim_config
 
 __all__ = [

@@ -140,12 +140,15 @@ class RerunLogger:
         images: dict[str, np.ndarray | None] | None = None,
         observations: FrameObservations | None = None,
         inliers: dict[str, np.ndarray] | None = None,
+        outlier_pixels: dict[str, np.ndarray] | None = None,
         truth_T_world_tractor: np.ndarray | None = None,
         truth_T_world_trailer: np.ndarray | None = None,
         truth_hitch_angle: float | None = None,
     ) -> None:
         """Log one frame. ``inliers[camera]`` is a boolean mask over ``observations.cameras[camera]``
-        (all inliers if absent). Angles in radians (plotted in degrees)."""
+        (all inliers if absent); ``outlier_pixels[camera]`` (K, 2) are extra features drawn as
+        outliers (e.g. the frontend's ``TrackingReport.rejected_pixels``). Angles in radians
+        (plotted in degrees)."""
         if self._closed:
             raise AmpcError(f"{self.path}: recording already closed")
         stream = self.stream
@@ -175,8 +178,13 @@ class RerunLogger:
                 mask = np.ones(len(camera_observations), bool) if inliers is None or name not in inliers else np.asarray(inliers[name], bool)
                 if mask.shape != (len(camera_observations),):
                     raise AmpcError(f"inlier mask of camera {name} has shape {mask.shape}, expected ({len(camera_observations)},)")
+                pixels = camera_observations.pixels
+                extra = None if outlier_pixels is None else outlier_pixels.get(name)
+                if extra is not None and len(extra):
+                    pixels = np.concatenate([pixels, np.asarray(extra, dtype=float).reshape(-1, 2)])
+                    mask = np.concatenate([mask, np.zeros(len(pixels) - len(mask), bool)])
                 colors = np.where(mask[:, None], INLIER_COLOR, OUTLIER_COLOR).astype(np.uint8)
-                stream.log(f"world/{camera.body}/{name}/features", rr.Points2D(camera_observations.pixels, colors=colors, radii=2.0))
+                stream.log(f"world/{camera.body}/{name}/features", rr.Points2D(pixels, colors=colors, radii=2.0))
 
         if self.rig.has_trailer:
             if hitch_angle is not None and np.isfinite(hitch_angle):

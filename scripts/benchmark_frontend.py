@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import time
 from pathlib import Path
@@ -66,6 +67,7 @@ def main() -> int:
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--threads", type=int, default=1, help="cameras tracked in parallel threads")
     parser.add_argument("--max-features", type=int, default=TrackerConfig().max_features)
+    parser.add_argument("--lk-window", type=int, default=TrackerConfig().lk_window)
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
@@ -79,10 +81,11 @@ def main() -> int:
     except AmpcError as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
-    config = TrackerConfig(max_features=args.max_features)
+    config = TrackerConfig(max_features=args.max_features, lk_window=args.lk_window)
     frontend = MultiCameraFrontend(rig, config, stereo_pairs=stereo_pairs, threads=args.threads)
     frontend.process(-1, 0.0, frames[0])  # warm-up (first detection, OpenCV initialisation)
     wall, stage_ms, features = [], {stage: [] for stage in STAGES}, []
+    cpu_start = time.process_time()
     for index, images in enumerate(frames[1:], start=1):
         start = time.perf_counter()
         result = frontend.process_with_details(index, 0.1 * index, images)
@@ -90,6 +93,7 @@ def main() -> int:
         for stage in STAGES:
             stage_ms[stage].append(sum(report.timings_ms.get(stage, 0.0) for report in result.reports.values()))
         features.append(np.mean([len(obs) for obs in result.observations.cameras.values()]))
+    cpu_ms = 1e3 * (time.process_time() - cpu_start) / max(len(wall), 1)
     frontend.close()
     cameras = len(rig.cameras)
     size = f"{rig.cameras[0].width}x{rig.cameras[0].height}"
@@ -98,6 +102,7 @@ def main() -> int:
           f"{np.mean(features):.0f} features per camera")
     print(f"  per frame        median {np.median(wall_ms):6.1f} ms   mean {np.mean(wall_ms):6.1f} ms   p90 {np.percentile(wall_ms, 90):6.1f} ms")
     print(f"  per camera frame median {np.median(wall_ms) / cameras:6.1f} ms")
+    print(f"  CPU time per frame {cpu_ms:6.1f} ms (all threads; wall time suffers when other processes load the machine; load average {os.getloadavg()[0]:.1f})")
     print("  breakdown per camera frame (mean, ms; summed over cameras / cameras):")
     for stage in STAGES:
         print(f"    {stage:<10s} {np.mean(stage_ms[stage]) / cameras:6.2f}")

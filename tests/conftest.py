@@ -52,7 +52,7 @@ def ci_simulation():
 @pytest.fixture
 def tiny_dataset(tmp_path, default_rig, short_trajectory) -> Path:
     """A small complete dataset folder in ``tmp_path``: rig.yaml, frames.csv, groundtruth.csv and
-    small random grey PNG images for every camera and frame."""
+    random grey 640x480 PNG images for every camera and frame (5 frames, 4 cameras)."""
     root = tmp_path / "dataset"
     rng = np.random.default_rng(0)
     frames = 5
@@ -65,5 +65,5 @@ def tiny_dataset(tmp_path, default_rig, short_trajectory) -> Path:
         for camera in default_rig.camera_names:
             path = root / image_relative_path(camera, frame)
             path.parent.mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(path), rng.integers(0, 256, size=(48, 64), dtype=np.uint8))
+            cv2.imwrite(str(path), rng.integers(0, 256, size=(48, 64), dtype=np.uint8).repeat(10, axis=0).repeat(10, axis=1))
     return root

@@ -4,6 +4,7 @@ from __future__ import annotations
 import csv
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 
@@ -32,7 +33,7 @@ def test_round_trip_identical_poses_and_rig(tiny_dataset, default_rig, short_tra
     assert np.max(np.abs(truth.T_world_tractor - short_trajectory.T_world_tractor[:5])) < 1e-15
     assert np.max(np.abs(truth.T_world_trailer - short_trajectory.T_world_trailer[:5])) < 1e-15
     image = dataset.load_image(3, "rear")
-    assert image.dtype == np.uint8 and image.shape == (48, 64)
+    assert image.dtype == np.uint8 and image.shape == (480, 640)
     assert dataset.image_path(3, "rear") == tiny_dataset / "images" / "rear" / "000003.png"
 
 
@@ -82,6 +83,14 @@ def test_corrupt_image(tiny_dataset):
         read_dataset(tiny_dataset, check_images=True)
     with pytest.raises(DatasetError, match=r"000001\.png: image cannot be decoded"):
         read_dataset(tiny_dataset).load_image(1, "right")
+
+
+def test_image_size_not_matching_the_rig(tiny_dataset):
+    cv2.imwrite(str(tiny_dataset / "images" / "front" / "000004.png"), np.zeros((240, 320), np.uint8))
+    with pytest.raises(DatasetError, match=r"000004\.png: image is 320x240 but rig.yaml says camera 'front' is 640x480"):
+        read_dataset(tiny_dataset, check_images=True)
+    with pytest.raises(DatasetError, match="320x240"):
+        read_dataset(tiny_dataset).load_image(4, "front")
 
 
 def test_non_increasing_timestamps(tiny_dataset):

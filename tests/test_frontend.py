@@ -14,7 +14,7 @@ from ampc_vo.errors import ConfigError, DatasetError
 from ampc_vo.frontend import (
     CameraTracker, MultiCameraFrontend, TrackerConfig, essential_from_bearings, essential_sampson,
     epipolar_inliers, grid_cells, motion_from_essential, select_per_cell, track_forward_backward,
-    triangulate_midpoint,
+    stereo_config_from_dict, tracker_config_from_dict, triangulate_midpoint,
 )
 from ampc_vo.geometry import make_pose, rot_y, rot_z, transform_points
 from ampc_vo.observations import match_tracks
@@ -269,3 +269,16 @@ def test_kitti_left_right_matches_are_on_the_same_row_and_agree_with_ground_trut
     ))
     assert np.median(error_px) < 0.6
     assert np.mean(error_px < 1.5) > 0.85
+
+
+def test_tracker_config_from_dict_validates():
+    config = tracker_config_from_dict({"max_features": 200, "fb_threshold_px": 0.5})
+    assert config.max_features == 200 and config.fb_threshold_px == 0.5
+    assert tracker_config_from_dict(None) == TrackerConfig()
+    with pytest.raises(ConfigError, match="unknown setting"):
+        tracker_config_from_dict({"max_feature": 200}, "vo.yaml: frontend")
+    with pytest.raises(ConfigError, match="expected a number"):
+        tracker_config_from_dict({"max_features": "many"})
+    with pytest.raises(ConfigError, match="lk_window must be odd"):
+        tracker_config_from_dict({"lk_window": 20})
+    assert stereo_config_from_dict({"min_depth_m": 2}).min_depth_m == 2.0

@@ -64,3 +64,23 @@ def test_positive_depth_rejects_the_mirrored_motion() -> None:
 def test_standstill_and_untranslated_input_give_no_solution() -> None:
     bearing = np.array([0.0, 0.3, 1.0]) / np.hypot(0.3, 1.0)
     assert hitch_angles_1pt(bearing, bearing, np.array([-12.0, 0, 3]), 0.0, np.zeros(3), -8.0) == []
+
+
+def test_trailer_camera_above_its_axle_still_gives_both_hitch_angles() -> None:
+    """p_x = 0: the quartic has a double root at U = 0 (DESIGN 2.2); polishing keeps the true one."""
+    from ampc_vo.rig import Rig, replace_camera
+    from ampc_vo.two_view import reference_rig
+
+    rig = reference_rig()
+    rear = rig.camera("rear")
+    T = rear.T_body_camera.copy()
+    T[0, 3] = rig.axle_x("trailer")
+    rig = Rig(rig.bodies, (rig.camera("front"), replace_camera(rear, T_body_camera=T)))
+    rng = np.random.default_rng(24)
+    for _ in range(200):
+        problem = make_two_view_problem(rng, rig=rig, points_per_body=2, yaw_change=(-0.2, 0.2), chord=(0.3, 2.0), hitch_angle=(-1.0, 1.0))
+        group = problem.on("trailer")[0]
+        solutions = hitch_angles_1pt(group.body_bearings_i[0], group.body_bearings_j[0], group.center, problem.yaw_change,
+                                     problem.hitch_translation, problem.trailer_axle_x)
+        errors = [max(abs(a - problem.hitch_angle_i), abs(b - problem.hitch_angle_j)) for a, b in solutions]
+        assert min(errors, default=np.inf) < 1e-8

@@ -2,6 +2,8 @@
 back with the expected entities and components."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -9,7 +11,7 @@ from ampc_vo.errors import AmpcError
 from ampc_vo.geometry import make_pose, planar_pose
 from ampc_vo.observations import CameraObservations, FrameObservations
 from ampc_vo.rig import Body, Camera, Rig, camera_rotation
-from ampc_vo.viz import RerunLogger, VizConfig, recording_contents, verify_recording
+from ampc_vo.viz import INLIER_COLOR, OUTLIER_COLOR, RerunLogger, VizConfig, recording_contents, verify_recording
 
 FRAMES = 6
 
@@ -41,6 +43,7 @@ def recording(tmp_path_factory):
                 images={"front": rng.integers(0, 255, size=(48, 64), dtype=np.uint8), "rear": None},
                 observations=observations,
                 inliers={"front": np.array([True, True, False, True, False])},
+                outlier_pixels={"front": np.array([[10.0, 10.0]])},
                 truth_T_world_tractor=planar_pose(1.0 * frame, 0.1, 0.0),
                 truth_T_world_trailer=planar_pose(1.0 * frame - 1.0, 0.1, 0.0),
                 truth_hitch_angle=0.04,
@@ -78,6 +81,20 @@ def test_recording_has_the_expected_entities(recording):
     for trajectory in ("tractor_estimate", "tractor_truth", "trailer_estimate", "trailer_truth"):
         assert "LineStrips3D:strips" in contents[f"/world/trajectory/{trajectory}"]
     assert "/world/trailer/rear/features" in contents  # an empty camera still logs (no points)
+
+
+def test_features_are_coloured_by_inlier_and_outlier(recording):
+    import subprocess
+    import sys
+
+    dump = subprocess.run([sys.executable, "-m", "rerun", "rrd", "print", "-vvv", str(recording)], capture_output=True, text=True, timeout=120).stdout
+    section = dump.split("/world/tractor/front/features", 1)[1].split("Chunk(", 1)[0]
+    first_row = next(line for line in section.splitlines() if re.search(r"┆ 0 +┆", line))
+    colors = [int(value) for value in re.search(r"\[(\d+(?:, \d+)*)\]", first_row).group(1).split(", ")]
+    packed = lambda rgb: (rgb[0] << 24) | (rgb[1] << 16) | (rgb[2] << 8) | 255  # noqa: E731
+    green, red = packed(INLIER_COLOR), packed(OUTLIER_COLOR)
+    # five tracked features with mask [T, T, F, T, F] and one extra rejected pixel
+    assert colors == [green, green, red, green, red, red]
 
 
 def test_empty_or_missing_recordings_fail_verification(tmp_path):

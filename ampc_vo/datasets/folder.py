@@ -124,8 +124,17 @@ class Dataset:
         return self.root / relative
 
     def load_image(self, frame: int, camera: str) -> np.ndarray:
-        """The grey ``uint8`` image of one camera at one frame; :class:`DatasetError` if unreadable."""
-        return decode_image(self.image_path(frame, camera))
+        """The grey ``uint8`` image of one camera at one frame; :class:`DatasetError` if unreadable
+        or if its size differs from the rig's ``width`` x ``height`` for that camera."""
+        path = self.image_path(frame, camera)
+        image = decode_image(path)
+        _check_size(path, image, self.rig.camera(camera))
+        return image
+
+
+def _check_size(path: Path, image: np.ndarray, camera) -> None:
+    if image.shape != (camera.height, camera.width):
+        raise DatasetError(f"{path}: image is {image.shape[1]}x{image.shape[0]} but rig.yaml says camera {camera.name!r} is {camera.width}x{camera.height}")
 
 
 def decode_image(path: Path) -> np.ndarray:
@@ -222,7 +231,7 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
     """Open and validate a dataset folder (module docstring).
 
     Always checks that every listed image exists; with ``check_images`` also decodes every image
-    (slow on long sequences). A dataset whose image columns are all empty, or whose ``images/``
+    and checks its size against the rig (slow on long sequences). A dataset whose image columns are all empty, or whose ``images/``
     folder is absent, has no images (``has_images`` is False, e.g. bearing measurements only);
     partially empty image columns are an error.
     """
@@ -251,8 +260,9 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
         if missing:
             raise DatasetError(f"{root / missing[0]}: image file missing (listed in {frames_path}; {len(missing)} missing in total)")
         if check_images:
-            for path in image_paths.ravel():
-                decode_image(root / path)
+            for row in image_paths:
+                for name, path in zip(camera_names, row):
+                    _check_size(root / path, decode_image(root / path), rig.camera(name))
     groundtruth_path = root / GROUNDTRUTH_FILE
     groundtruth = _read_groundtruth(groundtruth_path, timestamps) if groundtruth_path.is_file() else None
     measurements = None

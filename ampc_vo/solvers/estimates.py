@@ -19,21 +19,29 @@ class RansacConfig:
     """Options of :func:`estimate_tractor_motion` and :func:`estimate_hitch_angles` (radians, metres).
 
     ``sampson_threshold``: inlier threshold on the Sampson GEC residual (about 3 sigma, sigma =
-    pixel noise / focal). ``min_chord``: a tractor displacement below this is a standstill.
+    pixel noise / focal). ``confidence``, ``min_iterations``, ``max_iterations``, ``batch_size``:
+    adaptive sample count (hypotheses are drawn and scored in batches). ``min_inliers``: fewer
+    gives ``NO_CONSENSUS``. ``min_chord``: a tractor displacement below this is a standstill.
     ``standstill_parallax``: median angle between the two bearings of a correspondence below
     which nothing moved (a planar truck cannot rotate in place). ``min_camera_axle_offset``:
     cameras closer than this to the axle in x give no scale (DESIGN 2.1).
     ``max_relative_chord_sigma``: above this relative standard deviation of the refined chord
     (or a chord beyond ``max_chord``, where a flat cost lets the refinement wander), the scale is
-    reported unobservable. ``prior_gate``: hitch hypotheses farther than this from
-    the prior hitch angle are dropped when any hypothesis inside the gate exists.
-    ``local_optimizations``: number of best hypotheses refined (LO-RANSAC); the lowest MSAC cost
-    after refinement wins. ``chord_seeds``: the best hypothesis is also refined from its chord
-    times these factors (the chord is the weakly observed direction); a refined basin whose chord
-    differs by more than 3 sigma and whose MSAC cost is within ``ambiguity_points`` outliers'
-    worth (``threshold^2`` each) of the best makes the scale ambiguous (``SCALE_UNOBSERVABLE``):
-    the chord would hinge on single correspondences. ``refine_rounds``: inlier re-selection rounds of the tractor's
-    least-squares refinement, and reweighting rounds of the trailer's robust (Cauchy) refinement.
+    reported unobservable. ``max_hitch_angle``: admissible |theta|, |theta'|. ``prior_gate``:
+    hitch hypotheses farther than this from the prior hitch angle are dropped when any hypothesis
+    inside the gate exists.
+
+    Refinement (``refine``): ``local_optimizations`` best hypotheses are refined (LO-RANSAC) and
+    the lowest MSAC cost after refinement wins; ``chord_seeds``: the best hypothesis is also
+    refined from its chord times these factors (the chord is the weakly observed direction). A
+    refined basin whose chord differs by more than 3 sigma and whose MSAC cost is within
+    ``ambiguity_points`` outliers' worth (``threshold^2`` each) of the best makes the scale
+    ambiguous (``SCALE_UNOBSERVABLE``): the chord would hinge on single correspondences.
+    ``refine_rounds``: inlier re-selection rounds of the tractor's least-squares refinement and
+    reweighting rounds of the trailer's robust (Cauchy) refinement; ``refine_iterations``:
+    Levenberg-Marquardt iterations. For speed over robustness use ``local_optimizations=1,
+    chord_seeds=()`` (about 2.5x faster, see scripts/benchmark_solvers.py). ``seed``: RNG seed
+    used when no generator is passed.
     """
 
     sampson_threshold: float = 0.004

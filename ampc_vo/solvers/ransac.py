@@ -23,7 +23,15 @@ from ampc_vo.solvers.refine import refine_tractor, refine_tractor_batch, refine_
 from ampc_vo.solvers.status import SolverStatus
 from ampc_vo.solvers.tractor import ackermann_motion, tractor_motion_2pt_batch, tractor_yaw_1pt_batch
 from ampc_vo.solvers.trailer import hitch_angles_1pt_batch, positive_depth, trailer_motion_from_yaw
-from ampc_vo.solvers.estimates import Group, HitchEstimate, RansacConfig, TractorMotionEstimate, as_groups, chord_is_observable, median_parallax
+from ampc_vo.solvers.estimates import (
+    Group,
+    HitchEstimate,
+    RansacConfig,
+    TractorMotionEstimate,
+    as_groups,
+    chord_is_observable,
+    median_parallax,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -79,6 +87,9 @@ def _stack(groups: Sequence[Group]) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 # ---------------------------------------------------------------------- tractor
+Hypothesis = tuple[float, float, float, np.ndarray]  # (MSAC cost, yaw change, chord, inliers over the stacked points)
+
+
 def estimate_tractor_motion(
     correspondences: Sequence[Any],
     axle_x: float,
@@ -90,8 +101,10 @@ def estimate_tractor_motion(
 
     ``correspondences``: one entry per tractor camera, ``(bearings_i (N, 3), bearings_j (N, 3),
     center (3,))`` in the tractor frame (or an object with ``as_group()``); samples mix cameras.
-    ``axle_x``: tractor axle. ``chord_prior`` (metres, e.g. wheel odometry) is used only when
-    the scale is unobservable (straight driving, all cameras above the axle): the status stays
+    ``axle_x``: tractor axle. Steps: adaptive RANSAC with MSAC scoring; local optimisation of the
+    best hypotheses and of chord-scaled seeds (LO-RANSAC, least squares over inliers); scale
+    checks. ``chord_prior`` (metres, e.g. wheel odometry) is used only when the scale is
+    unobservable (straight driving, cameras above the axle, ambiguous chord): the status stays
     ``SCALE_UNOBSERVABLE`` but ``chord`` and ``T_i_j`` are then filled with it.
     """
     config = config or RansacConfig()
@@ -102,14 +115,46 @@ def estimate_tractor_motion(
     if total < max(2, config.min_inliers):
         return TractorMotionEstimate(SolverStatus.TOO_FEW_POINTS, inlier_masks=empty_masks)
     if median_parallax(groups) < config.standstill_parallax:
-        return TractorMotionEstimate(SolverStatus.STANDSTILL, 0.0, 0.0, np.eye(4), [g.full_mask(np.ones(len(g), bool)) for g in groups], total)
+        every = [g.full_mask(np.ones(len(g), dtype=bool)) for g in groups]
+        return TractorMotionEstimate(SolverStatus.STANDSTILL, 0.0, 0.0, np.eye(4), every, total)
     bearings_i, bearings_j, centers = _stack(groups)
     scale_capable = np.abs(centers[:, 0] - axle_x) > config.min_camera_axle_offset
     if not np.any(scale_capable):
         return _tractor_scale_free(groups, bearings_i, bearings_j, axle_x, config, chord_prior, rng)
 
-    capable_index = np.flatnonzero(scale_capable)
-    pool: list[tuple[float, float, float, np.ndarray]] = []  # (cost, yaw, chord, inliers) of checked hypotheses
+    pool, drawn = _sample_tractor_hypotheses(groups, bearings_i, bearings_j, centers, np.flatnonzero(scale_capable), axle_x, config, rng)
+    if not pool or np.sum(pool[0][3]) < config.min_inliers:
+        return TractorMotionEstimate(SolverStatus.NO_CONSENSUS, inlier_masks=empty_masks, num_hypotheses=drawn)
+    _, yaw_change, chord, inliers = pool[0]
+    if not config.refine:
+        T_i_j = make_pose(*ackermann_motion(yaw_change, chord, axle_x))
+        return TractorMotionEstimate(SolverStatus.OK, yaw_change, chord, T_i_j, _split(inliers, groups), int(np.sum(inliers)), drawn,
+                                     chord_sign=float(np.sign(chord) or 1.0))
+    refined = _local_optimization(groups, pool, axle_x, config)
+    cost, refined_yaw, refined_chord, covariance, rms, refined_inliers, start = refined[0]
+    chord_sigma = float(np.sqrt(covariance[1, 1])) if np.isfinite(covariance[1, 1]) else float("inf")
+    if not _scale_is_known(refined, chord_sigma, config):
+        return _scale_unobservable(groups, pool[0], axle_x, config, chord_prior, drawn, chord_sigma)
+    count = int(np.sum(refined_inliers))
+    if count < config.min_inliers:
+        return TractorMotionEstimate(SolverStatus.NO_CONSENSUS, inlier_masks=empty_masks, num_hypotheses=drawn)
+    masks = _split(refined_inliers, groups)
+    yaw_sigma = float(np.sqrt(covariance[0, 0]))
+    if abs(refined_chord) < config.min_chord:
+        return TractorMotionEstimate(SolverStatus.STANDSTILL, 0.0, 0.0, np.eye(4), masks, count, drawn, yaw_sigma, chord_sigma, 1.0, rms)
+    T_i_j = make_pose(*ackermann_motion(refined_yaw, refined_chord, axle_x))
+    sign = 1.0 if refined_chord >= 0 else -1.0
+    return TractorMotionEstimate(SolverStatus.OK, refined_yaw, refined_chord, T_i_j, masks, count, drawn, yaw_sigma, chord_sigma, sign, rms)
+
+
+def _sample_tractor_hypotheses(
+    groups: Sequence[Group], bearings_i: np.ndarray, bearings_j: np.ndarray, centers: np.ndarray, capable_index: np.ndarray,
+    axle_x: float, config: RansacConfig, rng: np.random.Generator,
+) -> tuple[list[Hypothesis], int]:
+    """Adaptive RANSAC over 2-point samples (the first point from a camera off the axle); returns
+    the cheirality-checked hypotheses sorted by MSAC cost, and the number of samples drawn."""
+    total = len(bearings_i)
+    pool: list[Hypothesis] = []
     best_cost, drawn, required = np.inf, 0, float(config.min_iterations)
     while drawn < min(max(required, config.min_iterations), config.max_iterations):
         first = capable_index[rng.integers(0, len(capable_index), config.batch_size)]
@@ -122,104 +167,110 @@ def estimate_tractor_motion(
             continue
         yaw, chord = yaw[valid], chord[valid]
         cost, inliers = _score(groups, *ackermann_motion(yaw, chord, axle_x), config.sampson_threshold)
-        checked = np.flatnonzero(np.isfinite(cost))
-        pool.extend((float(cost[k]), float(yaw[k]), float(chord[k]), inliers[k]) for k in checked)
+        pool.extend((float(cost[k]), float(yaw[k]), float(chord[k]), inliers[k]) for k in np.flatnonzero(np.isfinite(cost)))
         best = int(np.argmin(cost))
         if cost[best] < best_cost:
             best_cost = cost[best]
             required = _required_iterations(np.sum(inliers[best]) / total, 2, config.confidence)
     pool.sort(key=lambda item: item[0])
-    if not pool or np.sum(pool[0][3]) < config.min_inliers:
-        return TractorMotionEstimate(SolverStatus.NO_CONSENSUS, inlier_masks=empty_masks, num_hypotheses=drawn)
+    return pool, drawn
 
-    _, yaw_change, chord, inliers = pool[0]
+
+def _local_optimization(groups: Sequence[Group], pool: Sequence[Hypothesis], axle_x: float, config: RansacConfig) -> list[tuple]:
+    """LO-RANSAC: refine the ``config.local_optimizations`` best hypotheses and the best one with
+    its chord scaled by ``config.chord_seeds`` (the chord is the weakly observed direction, so
+    basins along it are explored); returns the refined models sorted by MSAC cost, each
+    ``(cost, yaw, chord, covariance, rms, inliers, start hypothesis)``."""
+    best_yaw, best_chord = pool[0][1], pool[0][2]
+    seeds = np.array([best_chord * factor for factor in config.chord_seeds])
+    candidates = list(pool[: config.local_optimizations])
+    if seeds.size:
+        seed_costs, seed_inliers = _score(groups, *ackermann_motion(np.full(seeds.size, best_yaw), seeds, axle_x), config.sampson_threshold,
+                                          check_top=seeds.size)
+        candidates += [(float(seed_costs[k]), best_yaw, float(seeds[k]), seed_inliers[k]) for k in range(seeds.size)]
+    candidates = [h for h in candidates if np.sum(h[3]) >= config.min_inliers]
+    return sorted(_refine_tractor_hypotheses(groups, candidates, axle_x, config), key=lambda item: item[0])
+
+
+def _scale_is_known(refined: Sequence[tuple], chord_sigma: float, config: RansacConfig) -> bool:
+    """Scale checks on the best refined model (DESIGN 2.1, 2.3): observable chord (finite, bounded,
+    small relative sigma); no sign change and no loss of consensus during refinement (a chord
+    wandering along a flat cost); no other basin with a chord more than 3 sigma away within
+    ``ambiguity_points`` outliers' worth of MSAC cost (the chord would hinge on single points)."""
+    cost, _, chord, _, _, inliers, start = refined[0]
+    margin = config.ambiguity_points * config.sampson_threshold**2
+    ambiguous = any(
+        abs(other[2] - chord) > max(3.0 * chord_sigma, 0.05 * abs(chord)) and other[0] - cost < margin for other in refined[1:]
+    )
+    return bool(
+        not ambiguous and chord_is_observable(chord, chord_sigma, config) and chord * start[2] > 0.0
+        and np.sum(inliers) >= 0.8 * np.sum(start[3])
+    )
+
+
+def _scale_unobservable(
+    groups: Sequence[Group], hypothesis: Hypothesis, axle_x: float, config: RansacConfig, chord_prior: float | None, drawn: int,
+    chord_sigma: float,
+) -> TractorMotionEstimate:
+    """The yaw change refined with the chord fixed (prior, or the hypothesis' magnitude with at least
+    1 m), direction of travel from the hypothesis; ``chord`` is the prior or NaN."""
+    _, yaw_change, chord, _ = hypothesis
     sign = 1.0 if chord >= 0 else -1.0
-    chord_sigma = yaw_sigma = rms = float("nan")
-    scale_known = True
-    if config.refine:
-        # local optimisation: refine the best few hypotheses, keep the lowest MSAC cost (LO-RANSAC)
-        candidates = list(pool[: config.local_optimizations])
-        # the chord is the weakly observed direction: also start from scaled chords of the best
-        for factor in config.chord_seeds:
-            seed_chord = pool[0][2] * factor
-            seed_cost, seed_inliers = _score(groups, *ackermann_motion(np.array([pool[0][1]]), np.array([seed_chord]), axle_x), config.sampson_threshold, 1)
-            candidates.append((float(seed_cost[0]), pool[0][1], seed_chord, seed_inliers[0]))
-        candidates = [h for h in candidates if np.sum(h[3]) >= config.min_inliers]
-        refined = sorted(_refine_tractor_hypotheses(groups, candidates, axle_x, config), key=lambda item: item[0])
-        best_cost, refined_yaw, refined_chord, covariance, refined_rms, refined_inliers, start = refined[0]
-        chord_sigma = float(np.sqrt(covariance[1, 1])) if np.isfinite(covariance[1, 1]) else float("inf")
-        # another basin with a clearly different chord and nearly the same cost: the scale is ambiguous
-        margin = config.ambiguity_points * config.sampson_threshold**2
-        ambiguous = any(
-            abs(other[2] - refined_chord) > max(3.0 * chord_sigma, 0.05 * abs(refined_chord)) and other[0] - best_cost < margin
-            for other in refined[1:]
-        )
-        # a chord that changed sign or lost the consensus (cheirality) wandered along a flat cost
-        scale_known = (
-            not ambiguous and chord_is_observable(refined_chord, chord_sigma, config) and refined_chord * start[2] > 0.0
-            and np.sum(refined_inliers) >= 0.8 * np.sum(start[3])
-        )
-        if scale_known:
-            yaw_change, chord, rms, inliers = refined_yaw, refined_chord, refined_rms, refined_inliers
-            sign, yaw_sigma = (1.0 if chord >= 0 else -1.0), float(np.sqrt(covariance[0, 0]))
-    count = int(np.sum(inliers))
-    if count < config.min_inliers:
-        return TractorMotionEstimate(SolverStatus.NO_CONSENSUS, inlier_masks=empty_masks, num_hypotheses=drawn)
-    if not scale_known:
-        # scale unobservable (straight driving): refine the yaw with the chord fixed (DESIGN 2.3)
-        known = chord_prior is not None and np.isfinite(chord_prior)
-        fixed = sign * (abs(float(chord_prior)) if known else max(abs(chord), 1.0))
-        yaw_change, _, covariance, rms = refine_tractor(
-            groups, yaw_change, fixed, axle_x, config.refine_iterations, fix_chord=True, robust_threshold=config.sampson_threshold, robust_rounds=config.refine_rounds
-        )
-        _, scored = _score(groups, *ackermann_motion(np.array([yaw_change]), np.array([fixed]), axle_x), config.sampson_threshold)
-        inliers = scored[0]
-        yaw_sigma = float(np.sqrt(covariance[0, 0])) if np.isfinite(covariance[0, 0]) else float("nan")
-        reported = fixed if known else float("nan")
-        T_i_j = make_pose(*ackermann_motion(yaw_change, reported, axle_x)) if known else None
-        return TractorMotionEstimate(
-            SolverStatus.SCALE_UNOBSERVABLE, yaw_change, reported, T_i_j, _split(inliers, groups), int(np.sum(inliers)), drawn, yaw_sigma,
-            chord_sigma, sign, rms,
-        )
-    masks = _split(inliers, groups)
-    if abs(chord) < config.min_chord:
-        return TractorMotionEstimate(SolverStatus.STANDSTILL, 0.0, 0.0, np.eye(4), masks, count, drawn, yaw_sigma, chord_sigma, 1.0, rms)
-    T_i_j = make_pose(*ackermann_motion(yaw_change, chord, axle_x))
-    return TractorMotionEstimate(SolverStatus.OK, yaw_change, chord, T_i_j, masks, count, drawn, yaw_sigma, chord_sigma, sign, rms)
+    known = chord_prior is not None and np.isfinite(chord_prior)
+    fixed = sign * (abs(float(chord_prior)) if known else max(abs(chord), 1.0))
+    yaw_change, _, covariance, rms = refine_tractor(
+        groups, yaw_change, fixed, axle_x, config.refine_iterations, fix_chord=True,
+        robust_threshold=config.sampson_threshold, robust_rounds=config.refine_rounds,
+    )
+    _, scored = _score(groups, *ackermann_motion(np.array([yaw_change]), np.array([fixed]), axle_x), config.sampson_threshold, check_top=1)
+    if np.sum(scored[0]) < config.min_inliers:
+        return TractorMotionEstimate(SolverStatus.NO_CONSENSUS, inlier_masks=[np.zeros(g.size, bool) for g in groups], num_hypotheses=drawn)
+    yaw_sigma = float(np.sqrt(covariance[0, 0])) if np.isfinite(covariance[0, 0]) else float("nan")
+    reported = fixed if known else float("nan")
+    T_i_j = make_pose(*ackermann_motion(yaw_change, reported, axle_x)) if known else None
+    return TractorMotionEstimate(
+        SolverStatus.SCALE_UNOBSERVABLE, yaw_change, reported, T_i_j, _split(scored[0], groups), int(np.sum(scored[0])), drawn,
+        yaw_sigma, chord_sigma, sign, rms,
+    )
 
 
 def _refine_tractor_hypotheses(
-    groups: Sequence[Group], candidates: Sequence[tuple[float, float, float, np.ndarray]], axle_x: float, config: RansacConfig
-) -> list[tuple[float, float, float, np.ndarray, float, np.ndarray, tuple]]:
-    """LO step: refine all hypotheses ``(cost, yaw, chord, inliers)`` together by least squares over
-    their inliers, re-selecting the inliers up to ``config.refine_rounds`` times. Returns, per
-    hypothesis, ``(MSAC cost, yaw, chord, covariance, rms, inliers, hypothesis)`` of the refined model."""
-    distinct: list[tuple[float, float, float, np.ndarray]] = []
+    groups: Sequence[Group], candidates: Sequence[Hypothesis], axle_x: float, config: RansacConfig
+) -> list[tuple]:
+    """Refine hypotheses ``(cost, yaw, chord, inliers)`` together (one batched Levenberg-Marquardt)
+    by least squares over their inliers, re-selecting the inliers up to ``config.refine_rounds``
+    times. Near-identical starts are merged; after each round, starts clearly worse than the best
+    (by more than 4 ``ambiguity_points`` outliers' worth) or converged onto a better start's basin
+    are dropped. Returns, per surviving hypothesis, ``(MSAC cost, yaw, chord, covariance, rms,
+    inliers, hypothesis)`` of the refined model.""" 
+    distinct: list[Hypothesis] = []
     for candidate in candidates:  # near-identical starts converge to the same basin
         if not any(abs(candidate[1] - d[1]) < 1e-4 and abs(candidate[2] - d[2]) < 1e-3 * abs(d[2]) + 1e-6 for d in distinct):
             distinct.append(candidate)
-    candidates = distinct
-    yaw = np.array([c[1] for c in candidates])
-    chord = np.array([c[2] for c in candidates])
-    masks = np.array([c[3] for c in candidates])
+    yaw = np.array([c[1] for c in distinct])
+    chord = np.array([c[2] for c in distinct])
+    masks = np.array([c[3] for c in distinct])
+    keep = np.arange(len(distinct))
+    margin = 4.0 * config.ambiguity_points * config.sampson_threshold**2
     for _ in range(max(config.refine_rounds, 1)):
         params, covariance, cost, used = refine_tractor_batch(groups, yaw, chord, masks, axle_x, config.refine_iterations)
         yaw, chord = params[:, 0], params[:, 1]
-        msac, scored = _score(groups, *ackermann_motion(yaw, chord, axle_x), config.sampson_threshold, check_top=len(candidates))
-        if np.array_equal(scored, masks):
+        msac, scored = _score(groups, *ackermann_motion(yaw, chord, axle_x), config.sampson_threshold, check_top=len(keep))
+        unchanged = np.array_equal(scored, masks)
+        # drop starts that are clearly worse than the best or converged onto a better one's basin
+        order = np.argsort(msac)
+        survivors: list[int] = []
+        for k in order:
+            duplicate = any(abs(yaw[k] - yaw[j]) < 1e-6 and abs(chord[k] - chord[j]) < 1e-5 * abs(chord[j]) + 1e-9 for j in survivors)
+            if not duplicate and msac[k] <= msac[order[0]] + margin:
+                survivors.append(int(k))
+        survivors = np.array(survivors)
+        yaw, chord, masks, keep = yaw[survivors], chord[survivors], scored[survivors], keep[survivors]
+        covariance, cost, used, msac = covariance[survivors], cost[survivors], used[survivors], msac[survivors]
+        if unchanged:
             break
-        masks = scored
     rms = np.sqrt(cost / np.maximum(used, 1))
-    return [
-        (float(msac[k]), float(yaw[k]), float(chord[k]), covariance[k], float(rms[k]), scored[k], candidates[k])
-        for k in range(len(candidates))
-    ]
-
-
-def _split_flat(flat_mask: np.ndarray, groups: Sequence[Group]) -> list[np.ndarray]:
-    """Cut a mask over the stacked valid correspondences into per-group masks over valid rows."""
-    bounds = np.cumsum([0] + [len(g) for g in groups])
-    return [flat_mask[bounds[k] : bounds[k + 1]] for k in range(len(groups))]
+    return [(float(msac[k]), float(yaw[k]), float(chord[k]), covariance[k], float(rms[k]), masks[k], distinct[keep[k]]) for k in range(len(keep))]
 
 
 def _tractor_scale_free(
@@ -227,10 +278,11 @@ def _tractor_scale_free(
     chord_prior: float | None, rng: np.random.Generator,
 ) -> TractorMotionEstimate:
     """1-point scale-free fallback for cameras above the axle (``p_x = 0``, DESIGN 2.1): yaw change
-    and direction of travel; the chord is the prior (or NaN)."""
+    and direction of travel (hypotheses with both chord signs, cheirality decides); the chord is
+    the prior (or NaN)."""
     total = len(bearings_i)
     unit = abs(float(chord_prior)) if chord_prior is not None and np.isfinite(chord_prior) else 1.0
-    best_cost, best_hypothesis, best_inliers = np.inf, None, None
+    best: Hypothesis | None = None
     drawn, required = 0, float(config.min_iterations)
     while drawn < min(max(required, config.min_iterations), config.max_iterations):
         index = rng.integers(0, total, config.batch_size)
@@ -241,32 +293,14 @@ def _tractor_scale_free(
             continue
         yaw = np.concatenate([yaw, yaw])
         chord = np.concatenate([np.full(yaw.size // 2, unit), np.full(yaw.size // 2, -unit)])
-        rotation, translation = ackermann_motion(yaw, chord, axle_x)
-        cost, inliers = _score(groups, rotation, translation, config.sampson_threshold)
-        best = int(np.argmin(cost))
-        if cost[best] < best_cost:
-            best_cost, best_hypothesis, best_inliers = cost[best], (float(yaw[best]), float(chord[best])), inliers[best]
-            required = _required_iterations(np.sum(best_inliers) / total, 1, config.confidence)
-    if best_hypothesis is None or np.sum(best_inliers) < config.min_inliers:
+        cost, inliers = _score(groups, *ackermann_motion(yaw, chord, axle_x), config.sampson_threshold)
+        winner = int(np.argmin(cost))
+        if best is None or cost[winner] < best[0]:
+            best = (float(cost[winner]), float(yaw[winner]), float(chord[winner]), inliers[winner])
+            required = _required_iterations(np.sum(best[3]) / total, 1, config.confidence)
+    if best is None or np.sum(best[3]) < config.min_inliers:
         return TractorMotionEstimate(SolverStatus.NO_CONSENSUS, inlier_masks=[np.zeros(g.size, bool) for g in groups], num_hypotheses=drawn)
-    yaw_change, chord = best_hypothesis
-    inliers = best_inliers
-    yaw_sigma, rms = float("nan"), float("nan")
-    if config.refine:
-        yaw_change, chord, covariance, rms = refine_tractor(
-            groups, yaw_change, chord, axle_x, config.refine_iterations, fix_chord=True, robust_threshold=config.sampson_threshold, robust_rounds=config.refine_rounds
-        )
-        yaw_sigma = float(np.sqrt(covariance[0, 0])) if np.isfinite(covariance[0, 0]) else float("nan")
-        _, scored = _score(groups, *ackermann_motion(np.array([yaw_change]), np.array([chord]), axle_x), config.sampson_threshold)
-        inliers = scored[0]
-    sign = 1.0 if chord >= 0 else -1.0
-    known = chord_prior is not None and np.isfinite(chord_prior)
-    reported = sign * unit if known else float("nan")
-    T_i_j = make_pose(*ackermann_motion(yaw_change, reported, axle_x)) if known else None
-    return TractorMotionEstimate(
-        SolverStatus.SCALE_UNOBSERVABLE, yaw_change, reported, T_i_j, _split(inliers, groups), int(np.sum(inliers)), drawn, yaw_sigma,
-        float("nan"), sign, rms,
-    )
+    return _scale_unobservable(groups, best, axle_x, config, chord_prior, drawn, float("nan"))
 
 
 # ---------------------------------------------------------------------- trailer
@@ -309,7 +343,9 @@ def estimate_hitch_angles(
     while drawn < min(max(required, config.min_iterations), config.max_iterations, total):
         index = order[drawn : drawn + config.batch_size]
         drawn += len(index)
-        solved = hitch_angles_1pt_batch(bearings_i[index], bearings_j[index], centers[index], yaw_change, translation, trailer_axle_x, config.max_hitch_angle)
+        solved = hitch_angles_1pt_batch(
+            bearings_i[index], bearings_j[index], centers[index], yaw_change, translation, trailer_axle_x, config.max_hitch_angle
+        )
         valid = solved["valid"]
         if not np.any(valid):
             continue
@@ -332,7 +368,8 @@ def estimate_hitch_angles(
     variance, rms = float("nan"), float("nan")
     if config.refine and np.sum(inliers) >= 2:
         psi_best, variance, rms = refine_trailer_yaw(
-            groups, psi_best, sign_best, yaw_change, translation, trailer_axle_x, config.refine_iterations, robust_threshold=config.sampson_threshold, robust_rounds=config.refine_rounds
+            groups, psi_best, sign_best, yaw_change, translation, trailer_axle_x, config.refine_iterations,
+            robust_threshold=config.sampson_threshold, robust_rounds=config.refine_rounds,
         )
         _, _, rotation, trailer_translation = trailer_motion_from_yaw(np.array([psi_best]), sign_best, yaw_change, translation, trailer_axle_x)
         _, scored = _score(groups, rotation, trailer_translation, config.sampson_threshold)

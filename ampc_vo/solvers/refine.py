@@ -19,7 +19,15 @@ from ampc_vo.geometry import make_pose, rot_z
 from ampc_vo.solvers.status import SolverStatus
 from ampc_vo.solvers.tractor import ackermann_motion, rotations_z
 from ampc_vo.solvers.trailer import trailer_motion_from_yaw
-from ampc_vo.solvers.estimates import Group, HitchEstimate, JointEstimate, RansacConfig, TractorMotionEstimate, as_groups, chord_is_observable
+from ampc_vo.solvers.estimates import (
+    Group,
+    HitchEstimate,
+    JointEstimate,
+    RansacConfig,
+    TractorMotionEstimate,
+    as_groups,
+    chord_is_observable,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -234,11 +242,18 @@ def refine_joint(
     back = _inlier_groups(trailer_correspondences, hitch.inlier_masks)
     sign = hitch.chord_sign
 
+    def stacked(rotation, translation, trailer_rotation, trailer_translation) -> np.ndarray:
+        return np.concatenate(
+            [sampson_residuals(front, rotation, translation), sampson_residuals(back, trailer_rotation, trailer_translation)], axis=1
+        )
+
     if trailer_nonholonomic:
         def residual_batch(params: np.ndarray) -> np.ndarray:
             rotation, translation = ackermann_motion(params[:, 0], params[:, 1], tractor_axle_x)
-            _, _, trailer_rotation, trailer_translation = trailer_motion_from_yaw(params[:, 2], sign, params[:, 0], translation, trailer_axle_x)
-            return np.concatenate([sampson_residuals(front, rotation, translation), sampson_residuals(back, trailer_rotation, trailer_translation)], axis=1)
+            _, _, trailer_rotation, trailer_translation = trailer_motion_from_yaw(
+                params[:, 2], sign, params[:, 0], translation, trailer_axle_x
+            )
+            return stacked(rotation, translation, trailer_rotation, trailer_translation)
 
         initial = np.array([tractor.yaw_change, tractor.chord, hitch.trailer_yaw_change])
     else:
@@ -246,9 +261,8 @@ def refine_joint(
             rotation, translation = ackermann_motion(params[:, 0], params[:, 1], tractor_axle_x)
             hitch_i, hitch_j = params[:, 2], params[:, 3]
             trailer_rotation = rotations_z(params[:, 0] + hitch_j - hitch_i)  # paper eq. (3)
-            cos, sin = np.cos(hitch_i), np.sin(hitch_i)
-            trailer_translation = np.stack([cos * translation[:, 0] + sin * translation[:, 1], -sin * translation[:, 0] + cos * translation[:, 1], translation[:, 2]], -1)
-            return np.concatenate([sampson_residuals(front, rotation, translation), sampson_residuals(back, trailer_rotation, trailer_translation)], axis=1)
+            trailer_translation = np.einsum("hba,hb->ha", rotations_z(hitch_i), translation)  # paper eq. (4): Q^T t
+            return stacked(rotation, translation, trailer_rotation, trailer_translation)
 
         initial = np.array([tractor.yaw_change, tractor.chord, hitch.hitch_angle_i, hitch.hitch_angle_j])
 

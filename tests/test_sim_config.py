@@ -1,0 +1,61 @@
+"""Simulation config files: every shipped config loads; bad fields give errors naming file and field."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from ampc_vo.errors import ConfigError
+from ampc_vo.sim_config import load_sim_config
+
+SIM_DIR = Path(__file__).resolve().parents[1] / "configs" / "sim"
+REQUIRED_ROUTES = ("city_block", "roundabout", "gentle_curve", "highway_lane_changes", "yard", "demo")
+
+
+def test_required_route_configs_exist_and_load():
+    for name in REQUIRED_ROUTES:
+        config = load_sim_config(SIM_DIR / f"{name}.yaml")
+        assert config.rig_path.is_file() and config.route.length > 0
+    assert load_sim_config(SIM_DIR / "city_block.yaml").route.length >= 400.0
+    demo = load_sim_config(SIM_DIR / "demo.yaml")
+    assert 18.0 <= demo.route.length / demo.speed <= 22.0 and demo.rate_hz == 10
+
+
+def _write(tmp_path: Path, changes: dict, drop: tuple = ()) -> Path:
+    raw = yaml.safe_load((SIM_DIR / "demo.yaml").read_text())
+    raw["rig"] = str(SIM_DIR.parent / "rigs" / "default.yaml")
+    raw.update(changes)
+    for key in drop:
+        raw.pop(key)
+    path = tmp_path / "broken_sim.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+@pytest.mark.parametrize(
+    "changes, drop, field",
+    [
+        ({"rig": "no/such/rig.yaml"}, (), "rig"),
+        ({}, ("rig",), "rig: missing"),
+        ({"rate_hz": -1}, (), "rate_hz"),
+        ({"outlier_fraction": 1.5}, (), "outlier_fraction"),
+        ({"max_tracks_per_camera": 0}, (), "max_tracks_per_camera"),
+        ({"segments": []}, (), "segments"),
+        ({"segments": [{"type": "turn", "angle_deg": 90, "radius": -3}]}, (), "segments[0].radius"),
+        ({"segments": [{"type": "straight", "length": 10, "radius": 3}]}, (), "segments[0]: unknown field"),
+        ({"scene": {"facade_distance": [5]}}, (), "scene.facade_distance"),
+        ({"scene": {"tree_density": 1}}, (), "scene: unknown field"),
+        ({"speeed": 3}, (), "unknown field(s) ['speeed']"),
+    ],
+)
+def test_bad_configs_name_file_and_field(tmp_path, changes, drop, field):
+    path = _write(tmp_path, changes, drop)
+    with pytest.raises(ConfigError) as error:
+        load_sim_config(path)
+    assert str(path) in str(error.value) and field in str(error.value), str(error.value)
+
+
+def test_rig_path_relative_to_the_repository(tmp_path):
+    path = _write(tmp_path, {"rig": "configs/rigs/default.yaml"})
+    assert load_sim_config(path).rig_path.name == "default.yaml"
