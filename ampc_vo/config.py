@@ -134,7 +134,7 @@ class OutputConfig:
     log_level: str = "INFO"
     progress: bool = True
     write_timing: bool = True
-    publish: str = "latest"
+    publish: str = "lagged"
 
     def validate(self, where: str) -> None:
         if self.publish not in PUBLISH_POLICIES:

@@ -11,9 +11,10 @@ Per camera, :class:`CameraTracker` runs, for every new image:
    over essential matrices from 8 bearing pairs, scored with the Sampson residual on the sphere
    (equal to ``ampc_vo.epipolar.gec_sampson`` with the camera centre at the origin, i.e. paper
    eq. (1) for a single central camera);
-5. grid-based replenishment: GFTT corners (``cv2.goodFeaturesToTrack`` with a mask around existing
-   features) fill the grid cells that hold fewer than their share of features; new features get new
-   ids, unique per camera and never reused;
+5. grid-based replenishment: GFTT corners (``cv2.goodFeaturesToTrack`` on a 2x downscaled image,
+   with a mask around existing features, only over the cells that need features) fill the grid
+   cells that hold fewer than their share of features; new features get new ids, unique per camera
+   and never reused;
 6. un-projection of the pixels to unit bearings with the rig's ``Camera.unproject``.
 
 :class:`MultiCameraFrontend` runs one tracker per camera and returns
@@ -51,9 +52,11 @@ class TrackerConfig:
     grid_rows: int = 6               # replenishment grid
     grid_cols: int = 8
     replenish_ratio: float = 0.85    # detect new corners when fewer than this share of max_features remain
-    quality_level: float = 0.005     # GFTT quality relative to the best corner of the image
+    max_per_cell_factor: float = 2.0 # a cell keeps at most this times its share of tracks (oldest first)
+    quality_level: float = 0.001     # GFTT quality relative to the best corner of the searched region
     min_distance_px: float = 12.0    # GFTT minimum distance, also the exclusion radius around tracks
-    block_size: int = 5              # GFTT block size
+    block_size: int = 3              # GFTT block size (at the detection scale)
+    detect_downscale: int = 2        # detect corners on an image downscaled by 1 (full size), 2 or 4 (faster)
     lk_window: int = 21              # LK window side
     lk_levels: int = 3               # pyramid levels above the base image
     lk_iterations: int = 20
@@ -73,6 +76,8 @@ class TrackerConfig:
         for name in positive:
             if int(getattr(self, name)) <= 0:
                 raise ConfigError(f"frontend: {name} must be positive, got {getattr(self, name)!r}")
+        if self.detect_downscale not in (1, 2, 4):
+            raise ConfigError(f"frontend: detect_downscale must be 1, 2 or 4, got {self.detect_downscale}")
         if self.lk_window % 2 == 0:
             raise ConfigError(f"frontend: lk_window must be odd, got {self.lk_window}")
         if not 0.0 < self.quality_level < 1.0:
@@ -322,6 +327,7 @@ class CameraTracker:
         self._pixels = np.zeros((0, 2))
         self._bearings = np.zeros((0, 3))
         self._ids = np.zeros(0, np.int64)
+        self._empty_cells_after_detection = 0
         self.last_report = TrackingReport()
         self.previous_image: np.ndarray | None = None  # grey image of the last tracked frame (stereo, viz)
 
@@ -394,10 +400,13 @@ class CameraTracker:
             report.rejected = int((~inliers).sum())
             report.rejected_pixels = pixels[~inliers]
             pixels, ids, bearings = pixels[inliers], ids[inliers], bearings[inliers]
+        if len(pixels):
+            thinned = self._thin_crowded_cells(pixels, ids)
+            pixels, ids, bearings = pixels[thinned], ids[thinned], bearings[thinned]
         report.timings_ms["reject"] = (time.perf_counter() - clock) * 1e3
 
         clock = time.perf_counter()
-        if len(pixels) < config.replenish_ratio * config.max_features:
+        if self._needs_features(pixels):
             new_pixels = self._detect(gray, pixels)
             report.detected = len(new_pixels)
             if len(new_pixels):
@@ -409,12 +418,37 @@ class CameraTracker:
                 report.timings_ms["unproject"] += (time.perf_counter() - clock) * 1e3
             else:
                 report.timings_ms["detect"] = (time.perf_counter() - clock) * 1e3
+            self._empty_cells_after_detection = self._empty_cells(pixels)
         if len(pixels) == 0:
             logger.warning("camera %s: no features found in frame", self.camera.name)
 
         self._pixels, self._bearings, self._ids = pixels, bearings, ids
         self.previous_image = gray
         return CameraObservations(self.camera.name, ids.copy(), pixels.copy(), bearings)
+
+    def _thin_crowded_cells(self, pixels: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """Indices (in input order) of the tracks to keep: at most ``max_per_cell_factor`` times a
+        cell's share per cell, the oldest (lowest id) first, so features stay spread over the grid."""
+        config = self.config
+        cells = config.grid_rows * config.grid_cols
+        cap = max(int(config.max_per_cell_factor * np.ceil(config.max_features / cells)), 1)
+        by_age = np.argsort(ids, kind="stable")
+        kept = select_per_cell(grid_cells(pixels[by_age], self.image_size, config.grid_rows, config.grid_cols), np.full(cells, cap))
+        return np.sort(by_age[kept])
+
+    def _empty_cells(self, pixels: np.ndarray) -> int:
+        config = self.config
+        cells = config.grid_rows * config.grid_cols
+        if len(pixels) == 0:
+            return cells
+        return int(cells - np.count_nonzero(np.bincount(grid_cells(pixels, self.image_size, config.grid_rows, config.grid_cols), minlength=cells)))
+
+    def _needs_features(self, pixels: np.ndarray) -> bool:
+        """Replenish when fewer than ``replenish_ratio * max_features`` tracks remain, or when grid
+        cells emptied since the last detection (cells without texture, e.g. sky, do not re-trigger)."""
+        if len(pixels) < self.config.replenish_ratio * self.config.max_features:
+            return True
+        return self._empty_cells(pixels) > self._empty_cells_after_detection
 
     def _detect(self, gray: np.ndarray, existing: np.ndarray) -> np.ndarray:
         """GFTT corners that fill under-populated grid cells (grid-based replenishment)."""
@@ -423,7 +457,10 @@ class CameraTracker:
         per_cell = int(np.ceil(config.max_features / cells))
         occupied = np.bincount(grid_cells(existing, self.image_size, config.grid_rows, config.grid_cols), minlength=cells) if len(existing) else np.zeros(cells, int)
         quota = np.maximum(per_cell - occupied, 0)
-        budget = config.max_features - len(existing)
+        # empty cells get their share even beyond max_features (by at most 10 %; crowded cells are
+        # thinned in track(), so the total stays close to max_features)
+        empty_share = int(np.count_nonzero(occupied == 0)) * per_cell
+        budget = max(config.max_features - len(existing), min(empty_share, config.max_features // 10))
         if budget <= 0 or quota.sum() == 0:
             return np.zeros((0, 2))
         # Only the bounding box of the cells that need features is searched (GFTT's cost is per pixel).
@@ -434,18 +471,27 @@ class CameraTracker:
         y0 = int(needy_rows.min() * height / config.grid_rows)
         y1 = int(np.ceil((needy_rows.max() + 1) * height / config.grid_rows))
         mask = detection_mask(existing, self.image_size, config.min_distance_px)[y0:y1, x0:x1]
+        region = gray[y0:y1, x0:x1]
+        scale = config.detect_downscale
+        for _ in range(scale // 2):  # each pyrDown halves the size (Gaussian-filtered)
+            region = cv2.pyrDown(region)
+        if scale > 1:
+            mask = cv2.resize(mask, (region.shape[1], region.shape[0]), interpolation=cv2.INTER_NEAREST)
         corners = cv2.goodFeaturesToTrack(
-            np.ascontiguousarray(gray[y0:y1, x0:x1]), maxCorners=int(min(4 * quota.sum(), 4 * config.max_features)),
-            qualityLevel=config.quality_level, minDistance=config.min_distance_px, mask=np.ascontiguousarray(mask),
+            np.ascontiguousarray(region), maxCorners=int(min(4 * quota.sum(), 4 * config.max_features)),
+            qualityLevel=config.quality_level, minDistance=config.min_distance_px / scale, mask=np.ascontiguousarray(mask),
             blockSize=config.block_size,
         )
         if corners is None:
             return np.zeros((0, 2))
-        corners = corners.reshape(-1, 2).astype(float) + [x0, y0]
+        # pixel k of a 2x-downscaled image covers full-size pixels 2k and 2k+1 (centre 2k + 0.5)
+        corners = corners.reshape(-1, 2).astype(float) * scale + (scale - 1) / 2.0 + [x0, y0]
         border = config.border_px
         inside = (corners[:, 0] >= border) & (corners[:, 0] <= width - 1 - border) & (corners[:, 1] >= border) & (corners[:, 1] <= height - 1 - border)
         corners = corners[inside]
-        keep = select_per_cell(grid_cells(corners, self.image_size, config.grid_rows, config.grid_cols), quota)
+        corner_cells = grid_cells(corners, self.image_size, config.grid_rows, config.grid_cols)
+        keep = select_per_cell(corner_cells, quota)
+        keep = keep[np.argsort(occupied[corner_cells[keep]] > 0, kind="stable")]  # empty cells first
         return corners[keep][:budget]
 
 

@@ -151,7 +151,8 @@ def simulate_kinematics(
     """Integrate the tractor-trailer ODE (module docstring) with RK4 and sample at ``rate_hz``.
 
     The tractor starts with its hitch at the world origin heading along +x. Without ``duration``
-    the run ends at the first frame at or past the route's end. The integration step is the frame
+    the run ends at the first frame at or past the route's end. At a ``stop`` segment the state is
+    held for the stop's duration (the speed profile brakes to ``CREEP_SPEED`` before it). The integration step is the frame
     period divided into ``ceil(integration_rate_hz / rate_hz)`` equal steps (~1 ms).
     """
     if rate_hz <= 0.0:
@@ -171,14 +172,23 @@ def simulate_kinematics(
 
     state: tuple[float, ...] = (tractor_axle_x, 0.0, 0.0, float(initial_hitch_angle), 0.0)
     states = [state]
+    standing = [False]
+    pending_stops = list(route.stops)
+    hold_steps = 0  # integration steps left standing still at a stop
     while True:
         if frame_count is not None and len(states) >= frame_count:
             break
-        if frame_count is None and state[4] >= route.length:
+        if frame_count is None and state[4] >= route.length and not pending_stops and hold_steps == 0:
             break
         for _ in range(substeps):
+            if hold_steps > 0:
+                hold_steps -= 1
+                continue
             state = _rk4_step(state, dt, route, s_a, s_b)
+            if pending_stops and state[4] >= pending_stops[0][0]:
+                hold_steps = int(round(pending_stops.pop(0)[1] / dt))
         states.append(state)
+        standing.append(hold_steps > 0)
         if len(states) > 10_000_000:
             raise ConfigError("trajectory longer than 10 million frames: check speed and duration")
         if abs(state[3]) > math.radians(89.0):
@@ -188,7 +198,7 @@ def simulate_kinematics(
             )
     array = np.asarray(states)
     T_world_tractor, T_world_trailer = poses_from_states(array[:, :2], array[:, 2], array[:, 3], tractor_axle_x)
-    speed = np.array([route.speed(s) for s in array[:, 4]])
+    speed = np.where(standing, 0.0, [route.speed(s) for s in array[:, 4]])
     curvature = np.array([route.curvature(s) for s in array[:, 4]])
     timestamps = start_time + np.arange(len(states)) * frame_period
     LOGGER.info("simulated %d frames (%.1f s, %.1f m)", len(states), timestamps[-1] - timestamps[0], array[-1, 4])

@@ -30,7 +30,6 @@ from ampc_vo.observations import CameraObservations, FrameObservations
 from ampc_vo.rig import Rig
 
 MEASUREMENTS_FILE = "measurements.npz"
-_ARRAYS = ("frame", "camera_index", "track_id", "landmark_id", "pixel", "pixel_clean", "is_outlier", "camera_names", "landmarks", "timestamps")
 
 
 @dataclass(frozen=True, eq=False)

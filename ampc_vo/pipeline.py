@@ -13,12 +13,13 @@ Measurement sources are pluggable: anything that yields :class:`FrameObservation
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Iterable
+from typing import Callable, Iterable
 
 import numpy as np
 
@@ -87,8 +88,12 @@ class RunSummary:
 class OdometryPipeline:
     """Keyframe selection, initialisation and smoothing over a stream of frames (module docstring)."""
 
-    def __init__(self, rig: Rig, config: VoConfig, writer: OutputWriter | None = None) -> None:
+    def __init__(self, rig: Rig, config: VoConfig, writer: OutputWriter | None = None,
+                 wheel_odometry: Callable[[float, float], float] | None = None) -> None:
+        """``wheel_odometry(t_i, t_j)``: chord (m) of the tractor axle midpoint between two times,
+        used when ``scale.wheel_speed`` is on (the optional WheelSpeedFactor)."""
         self.rig = rig
+        self.wheel_odometry = wheel_odometry
         self.config = config
         self.writer = writer
         self.policy = KeyframePolicy.from_config(config)
@@ -142,6 +147,8 @@ class OdometryPipeline:
     def _add_keyframe(self, frame: FrameObservations, tractor: TractorMotion, elapsed: float) -> list[KeyframeEstimate]:
         predicted_trailer = self._predicted(elapsed, self._trailer_velocity) if self._trailer_velocity is not None else None
         init = self.initializer.keyframe(self._last_keyframe, frame, tractor, self._hitch, predicted_trailer)
+        if self.config.scale.wheel_speed and self.wheel_odometry is not None:
+            init = dataclasses.replace(init, wheel_chord=float(self.wheel_odometry(self._last_keyframe.timestamp, frame.timestamp)))
         self._statuses[init.tractor_status.value] = self._statuses.get(init.tractor_status.value, 0) + 1
         if self.smoother.keyframe_count == 0:
             self.smoother.add_keyframe(self._last_keyframe, _first_init())
@@ -271,18 +278,32 @@ def _first_init():
     return MotionInit(np.eye(4), MotionStatus.FIRST)
 
 
-def run_on_frames(rig: Rig, config: VoConfig, frames: Iterable[FrameObservations], out_dir: str | Path | None = None, total: int | None = None, progress: bool | None = None) -> tuple[RunSummary, list[KeyframeEstimate]]:
+def wheel_odometry_from_poses(timestamps: np.ndarray, T_world_tractor: np.ndarray, axle_x: float, sigma_m: float = 0.0, seed: int = 0) -> Callable[[float, float], float]:
+    """A simulated wheel-odometry sensor: the chord of the tractor axle midpoint between two
+    frame times from (ground-truth) poses, plus Gaussian noise ``sigma_m`` (for experiments)."""
+    axle = T_world_tractor[:, :3, :3] @ np.array([axle_x, 0.0, 0.0]) + T_world_tractor[:, :3, 3]
+    rng = np.random.default_rng(seed)
+
+    def chord(t_i: float, t_j: float) -> float:
+        i, j = (int(np.argmin(np.abs(timestamps - t))) for t in (t_i, t_j))
+        return float(np.linalg.norm(axle[j] - axle[i]) + rng.normal(0.0, sigma_m)) if sigma_m > 0 else float(np.linalg.norm(axle[j] - axle[i]))
+
+    return chord
+
+
+def run_on_frames(rig: Rig, config: VoConfig, frames: Iterable[FrameObservations], out_dir: str | Path | None = None, total: int | None = None, progress: bool | None = None,
+                  wheel_odometry: Callable[[float, float], float] | None = None) -> tuple[RunSummary, list[KeyframeEstimate]]:
     """Run the pipeline on any source of frames; with ``out_dir``, write the outputs incrementally,
     ``timing.json`` and the config used (``config.yaml``)."""
     with_trailer = rig.has_trailer and config.mode != "tractor_only"
     if out_dir is None:
-        pipeline = OdometryPipeline(rig, config)
+        pipeline = OdometryPipeline(rig, config, wheel_odometry=wheel_odometry)
         return pipeline.run(frames, total, progress), pipeline.estimates
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     save_config(config, out_dir / "config.yaml")
     with OutputWriter(out_dir, with_trailer=with_trailer) as writer:
-        pipeline = OdometryPipeline(rig, config, writer)
+        pipeline = OdometryPipeline(rig, config, writer, wheel_odometry=wheel_odometry)
         summary = pipeline.run(frames, total, progress)
     if config.output.write_timing:
         (out_dir / TIMING_FILE).write_text(json.dumps(asdict(summary), indent=2) + "\n", encoding="utf-8")

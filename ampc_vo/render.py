@@ -218,6 +218,50 @@ def _road_chain_offsets(quads: Sequence[Quad]) -> np.ndarray:
     return offsets
 
 
+_NEAR_PLANE_M = 1e-3
+
+
+def _clip_polygon_near(points: np.ndarray, z_near: float) -> np.ndarray:
+    """Sutherland-Hodgman clip of a convex polygon (K, 3) to the half-space z >= z_near."""
+    output = []
+    count = len(points)
+    for k in range(count):
+        current, following = points[k], points[(k + 1) % count]
+        current_in, following_in = current[2] >= z_near, following[2] >= z_near
+        if current_in:
+            output.append(current)
+        if current_in != following_in:
+            fraction = (z_near - current[2]) / (following[2] - current[2])
+            output.append(current + fraction * (following - current))
+    return np.array(output).reshape(-1, 3)
+
+
+def merge_collinear_strips(quads: Sequence[Quad], tolerance: float = 1e-6) -> list[Quad]:
+    """Merge consecutive quads that continue each other along ``axis_u`` on straight stretches.
+
+    Roads and shoulders come as chains of short overlapping strips; on straights consecutive strips
+    share their axes and lie on one line, and one long quad renders the same pixels with less
+    overdraw. Only horizontal quads of the same kind, texture, scale and height are merged (their
+    texture is mapped from world x, y, so it is unchanged).
+    """
+    merged: list[Quad] = []
+    for quad in quads:
+        if merged:
+            last = merged[-1]
+            step = np.asarray(quad.origin, float) - np.asarray(last.origin, float)
+            along = float(step @ np.asarray(last.axis_u, float))
+            same = (quad.kind == last.kind and quad.texture == last.texture and quad.texture_scale == last.texture_scale
+                    and abs(quad.height - last.height) < tolerance
+                    and np.allclose(quad.axis_u, last.axis_u, atol=tolerance) and np.allclose(quad.axis_v, last.axis_v, atol=tolerance)
+                    and abs(float(np.cross(last.axis_u, last.axis_v)[2])) > 0.9)
+            if same and 0.0 < along <= last.width + tolerance and np.linalg.norm(step - along * np.asarray(last.axis_u, float)) < tolerance:
+                merged[-1] = Quad(last.origin, last.axis_u, last.axis_v, max(last.width, along + quad.width), last.height,
+                                  last.kind, last.texture, last.texture_scale)
+                continue
+        merged.append(quad)
+    return merged
+
+
 def prepare_quads(quads: Sequence[Quad], atlas: TextureAtlas, options: RenderOptions, seed_offset: int = 0) -> PreparedQuads:
     """Split, shade and index ``quads`` for rendering (pure: same input, same output).
 
@@ -349,7 +393,7 @@ class Renderer:
         if textures is None:
             textures = load_textures(seed=self.options.seed)
         self.atlas = textures if isinstance(textures, TextureAtlas) else build_atlas(textures)
-        self.quads = prepare_quads(scene.quads, self.atlas, self.options)
+        self.quads = prepare_quads(merge_collinear_strips(scene.quads), self.atlas, self.options)
         self._rays: dict[tuple, CameraRays] = {}
 
     def rays_of(self, camera: Camera) -> CameraRays:
@@ -398,6 +442,20 @@ class Renderer:
                 np.floor((pixels[..., 0].min(axis=1) - margin) / tile), np.floor((pixels[..., 0].max(axis=1) + margin) / tile),
                 np.floor((pixels[..., 1].min(axis=1) - margin) / tile), np.floor((pixels[..., 1].max(axis=1) + margin) / tile),
             ], axis=1)
+        if camera.model == "pinhole" and not np.any(camera.distortion) and not front.all():
+            # Quads reaching behind the lens (ground around the vehicle): clip them at a near plane;
+            # an undistorted pinhole maps the clipped polygon's edges to straight segments.
+            tile = self.options.tile_size
+            for index in np.flatnonzero(~front):
+                corners = outline[index, ::_OUTLINE_SAMPLES]
+                polygon = _clip_polygon_near(corners, _NEAR_PLANE_M)
+                if len(polygon) == 0:
+                    box[index] = (1, 0, 1, 0)  # empty
+                    continue
+                pixels = np.stack([camera.fx * polygon[:, 0] / polygon[:, 2] + camera.cx, camera.fy * polygon[:, 1] / polygon[:, 2] + camera.cy], axis=1)
+                pixels = np.clip(pixels, -1e6, 1e6)
+                box[index] = (np.floor((pixels[:, 0].min() - 2.0) / tile), np.floor((pixels[:, 0].max() + 2.0) / tile),
+                              np.floor((pixels[:, 1].min() - 2.0) / tile), np.floor((pixels[:, 1].max() + 2.0) / tile))
         box[:, 0::2] = np.maximum(box[:, 0::2], 0)
         box[:, 1] = np.minimum(box[:, 1], tiles_x - 1)
         box[:, 3] = np.minimum(box[:, 3], tiles_y - 1)
@@ -630,11 +688,10 @@ def vehicle_pose(trajectory: Any, frame_time: float, options: RenderOptions) -> 
     steps = np.linalg.norm(np.diff(positions[:, :2], axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(steps)])
     s = options.vehicle_lead_m + options.vehicle_speed_mps * frame_time
-    s = float(np.clip(s, 0.0, arc[-1]))
-    index = int(np.clip(np.searchsorted(arc, s) - 1, 0, len(arc) - 2)) if len(arc) > 1 else 0
+    index = int(np.clip(np.searchsorted(arc, s) - 1, 0, len(arc) - 1))
     T = trajectory.T_world_tractor[index].copy()
-    lateral = T[:3, 1] * options.vehicle_lateral_m
-    T[:3, 3] = positions[index] + lateral
+    beyond = s - arc[index]  # straight extrapolation past the ends of the tractor's path
+    T[:3, 3] = positions[index] + beyond * T[:3, 0] + T[:3, 1] * options.vehicle_lateral_m
     T[2, 3] = 0.0
     if options.vehicle_speed_mps < 0:
         T[:3, :2] = -T[:3, :2]

@@ -11,7 +11,11 @@ Each segment has a length (metres), a curvature profile ``kappa(s)`` over its lo
 * ``clothoid``: curvature ramps linearly from ``kappa_start`` to ``kappa_end``;
 * ``lane_change``: ``kappa(s) = (2 pi offset / L^2) sin(2 pi s / L)``, which moves the vehicle
   sideways by ~``offset`` metres (positive = left) with zero net heading change;
-* ``s_curve``: ``kappa(s) = max_curvature sin(2 pi s / L)``, a left-then-right S.
+* ``s_curve``: ``kappa(s) = max_curvature sin(2 pi s / L)``, a left-then-right S;
+* ``stop``: zero length; the vehicle brakes to a standstill at this point (constant deceleration
+  ``stop_deceleration``, speed ``sqrt(2 a d)`` at distance ``d`` from the stop, never below
+  ``CREEP_SPEED`` so the stop is reached), stands still for ``duration`` seconds, then accelerates
+  the same way (the standstill itself is timed by ``kinematics.simulate_kinematics``).
 
 Speed changes between segments ramp linearly over ``speed_ramp_m`` metres after the boundary.
 Route segments are built from YAML (see ``sim_config``); errors name the file and the field.
@@ -25,7 +29,8 @@ from typing import Any
 
 from ampc_vo.errors import ConfigError
 
-SEGMENT_KINDS = ("straight", "turn", "clothoid", "lane_change", "s_curve")
+SEGMENT_KINDS = ("straight", "turn", "clothoid", "lane_change", "s_curve", "stop")
+CREEP_SPEED = 0.05  # m/s: lowest speed of the braking envelope, so that a stop is reached in finite time
 
 
 @dataclass(frozen=True)
@@ -42,10 +47,11 @@ class Segment:
     kappa_end: float = 0.0      # clothoid
     offset: float = 0.0         # lane_change: lateral offset (m)
     max_curvature: float = 0.0  # s_curve
+    duration: float = 0.0       # stop: standstill time (s)
 
     def curvature(self, s: float) -> float:
         """Curvature (1/m) at local arc length ``s`` in [0, length]."""
-        if self.kind == "straight":
+        if self.kind in ("straight", "stop"):
             return 0.0
         if self.kind == "turn":
             kappa = math.copysign(1.0 / self.radius, self.angle)
@@ -75,14 +81,23 @@ class Route:
 
     segments: tuple[Segment, ...]
     speed_ramp_m: float = 10.0
+    stop_deceleration: float = 1.0
 
     def __post_init__(self) -> None:
-        starts, total = [], 0.0
+        starts, total, stops = [], 0.0, []
         for segment in self.segments:
             starts.append(total)
+            if segment.kind == "stop":
+                stops.append((total, segment.duration))
             total += segment.length
         object.__setattr__(self, "_starts", starts)
         object.__setattr__(self, "_length", total)
+        object.__setattr__(self, "_stops", tuple(stops))
+
+    @property
+    def stops(self) -> tuple[tuple[float, float], ...]:
+        """``(arc length, standstill duration)`` of every ``stop`` segment, in order."""
+        return self._stops  # type: ignore[attr-defined]
 
     @property
     def length(self) -> float:
@@ -104,23 +119,26 @@ class Route:
         start = self._starts[index]  # type: ignore[attr-defined]
         segment = self.segments[index]
         curvature = segment.curvature(s - start) if s < self.length else 0.0
-        if index == 0 or self.speed_ramp_m <= 0.0 or s - start >= min(self.speed_ramp_m, segment.length):
+        if not self._stops and (index == 0 or self.speed_ramp_m <= 0.0 or s - start >= min(self.speed_ramp_m, segment.length)):  # type: ignore[attr-defined]
             return segment.speed, curvature
         return self.speed(s), curvature
 
     def speed(self, s: float) -> float:
         """Speed (m/s) at arc length ``s``: each segment's speed, ramped linearly over
-        ``speed_ramp_m`` after a boundary where it changes."""
+        ``speed_ramp_m`` after a boundary where it changes, and limited by the braking and
+        acceleration envelope ``max(sqrt(2 a |s - s_stop|), CREEP_SPEED)`` around stops."""
         index = self._locate(min(s, self.length))
         target = self.segments[index].speed
-        if index == 0 or self.speed_ramp_m <= 0.0:
-            return target
-        previous = self.segments[index - 1].speed
-        into = s - self._starts[index]  # type: ignore[attr-defined]
-        ramp = min(self.speed_ramp_m, self.segments[index].length)
-        if into >= ramp:
-            return target
-        return previous + (target - previous) * into / ramp
+        if index > 0 and self.speed_ramp_m > 0.0:
+            previous = self.segments[index - 1].speed
+            into = s - self._starts[index]  # type: ignore[attr-defined]
+            ramp = min(self.speed_ramp_m, self.segments[index].length)
+            if into < ramp:
+                target = previous + (target - previous) * into / ramp
+        for position, _ in self._stops:  # type: ignore[attr-defined]
+            envelope = max(math.sqrt(2.0 * self.stop_deceleration * abs(s - position)), CREEP_SPEED)
+            target = min(target, envelope)
+        return target
 
 
 # ---------------------------------------------------------------------- parsing
@@ -144,6 +162,7 @@ _ALLOWED_KEYS = {
     "clothoid": {"length", "curvature_start", "curvature_end"},
     "lane_change": {"length", "offset"},
     "s_curve": {"length", "max_curvature"},
+    "stop": {"duration"},
 }
 
 
@@ -158,6 +177,11 @@ def segment_from_dict(spec: Any, default_speed: float, where: str, source: str) 
     if unknown:
         raise ConfigError(f"{source}: {where}: unknown field(s) {sorted(unknown)} for a {kind} segment")
     speed = _number(spec, "speed", where, source, default=default_speed, positive=True)
+    if kind == "stop":
+        duration = _number(spec, "duration", where, source)
+        if duration < 0.0:
+            raise ConfigError(f"{source}: {where}.duration: must be >= 0, got {duration}")
+        return Segment("stop", 0.0, speed, duration=duration)
     if kind == "turn":
         angle = math.radians(_number(spec, "angle_deg", where, source))
         radius = _number(spec, "radius", where, source, positive=True)

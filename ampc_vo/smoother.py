@@ -79,6 +79,7 @@ class MotionInit:
     trailer_status: MotionStatus = MotionStatus.TOO_FEW_TRACKS
     T_trailer: np.ndarray | None = None
     inlier_tracks: dict[str, np.ndarray] = field(default_factory=dict)  # per camera: RANSAC inliers of (k-1, k)
+    wheel_chord: float | None = None  # measured chord of the tractor axle midpoint (wheel odometry), metres
 
 
 @dataclass(frozen=True)
@@ -167,6 +168,7 @@ class ArticulatedSmoother:
         params.setMaxIterations(config.smoother.lm_max_iterations)
         params.setlambdaInitial(config.smoother.lm_lambda_initial)
         params.setRelativeErrorTol(config.smoother.lm_relative_error_tol)
+        self._params = params
         self._smoother = gtsam.BatchFixedLagSmoother(config.smoother.lag_s, params)
         self._window: dict[int, _Keyframe] = {}
         self._estimate = gtsam.Values()
@@ -232,7 +234,7 @@ class ArticulatedSmoother:
         self.timings.append(timing)
         if lagged:
             return leaving
-        return [self._publish(self._window[index], sigma if index == keyframe.index else None) for index in published_indices]
+        return [self._publish(self._window[index], sigma if index == keyframe.index else None) for index in published_indices if index in self._window]
 
     def _recover(self, keyframe: _Keyframe, pending: _Pending, error: RuntimeError) -> None:
         """An ill-conditioned window (e.g. a keyframe whose factors were all rejected): anchor the new
@@ -251,8 +253,36 @@ class ArticulatedSmoother:
             anchor.add(gtsam.PriorFactorDouble(A(k), pending.values.atDouble(A(k)), gtsam.noiseModel.Isotropic.Sigma(1, np.radians(2.0))))
         try:
             self._smoother.update(anchor, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
-        except RuntimeError as second:
-            raise AmpcError(f"frame {keyframe.frame}: smoother failed twice ({str(second).strip().splitlines()[0]}); cannot continue") from None
+        except RuntimeError:
+            self._reinitialise(keyframe, pending)
+
+    def _reinitialise(self, keyframe: _Keyframe, pending: _Pending) -> None:
+        """Last resort (DESIGN 4: re-initialise instead of crashing): a new smoother whose first
+        keyframe is this one, anchored at its initial values; the old window is dropped."""
+        logger.warning("frame %d: smoother re-initialised at this keyframe (window dropped)", keyframe.frame)
+        config = self.config.smoother
+        k = keyframe.index
+        self._smoother = gtsam.BatchFixedLagSmoother(config.lag_s, self._params)
+        restart = _Pending()
+        T_world_tractor = pending.values.atPose3(X(k)).matrix()
+        restart.insert(X(k), T_world_tractor, keyframe.timestamp)
+        prior = _pose_sigmas(np.radians(config.prior_rotation_sigma_deg), config.prior_translation_sigma_m)
+        restart.graph.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(T_world_tractor), prior))
+        if self.use_trailer:
+            T_world_trailer = pending.values.atPose3(Y(k)).matrix()
+            restart.insert(Y(k), T_world_trailer, keyframe.timestamp)
+            if self.joint:
+                hitch = pending.values.atDouble(A(k))
+                restart.insert(A(k), float(hitch), keyframe.timestamp)
+                restart.graph.add(gtsam.PriorFactorDouble(A(k), float(hitch), gtsam.noiseModel.Isotropic.Sigma(1, np.radians(5.0))))
+                self._add_joint_loop(k, restart)
+            else:
+                restart.graph.add(gtsam.PriorFactorPose3(Y(k), gtsam.Pose3(T_world_trailer), prior))
+        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        for key, stamp in restart.timestamps.items():
+            stamps.insert((key, stamp))
+        self._smoother.update(restart.graph, restart.values, stamps)
+        self._window = {k: keyframe}
 
     def flush(self) -> list[KeyframeEstimate]:
         """End of the stream: with ``output.publish: lagged`` the keyframes still in the window."""
@@ -350,6 +380,11 @@ class ArticulatedSmoother:
                 pending.graph.add(RelativePoseFactor(key(previous), key(k), T_prior, weak))
             if own_motion:
                 self._add_smooth_speed(key, keyframe, pending)
+            if body == "tractor" and self.config.scale.wheel_speed and init.wheel_chord is not None:
+                from factors import WheelSpeedFactor
+
+                wheel_noise = gtsam.noiseModel.Isotropic.Sigma(1, self.config.scale.wheel_speed_sigma_m)
+                pending.graph.add(WheelSpeedFactor(X(previous), X(k), self.rig.axle_x("tractor"), float(init.wheel_chord), wheel_noise))
 
     def _initial_hitch(self, keyframe: _Keyframe, pending: _Pending) -> float:
         """θ_k: the 1-point RANSAC estimate if any, else held (standstill) or predicted by the

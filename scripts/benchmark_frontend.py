@@ -68,6 +68,7 @@ def main() -> int:
     parser.add_argument("--threads", type=int, default=1, help="cameras tracked in parallel threads")
     parser.add_argument("--max-features", type=int, default=TrackerConfig().max_features)
     parser.add_argument("--lk-window", type=int, default=TrackerConfig().lk_window)
+    parser.add_argument("--cv-threads", type=int, help="cv2.setNumThreads for this process (default: OpenCV's choice)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
@@ -81,6 +82,10 @@ def main() -> int:
     except AmpcError as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
+    if args.cv_threads is not None:
+        import cv2
+
+        cv2.setNumThreads(args.cv_threads)
     config = TrackerConfig(max_features=args.max_features, lk_window=args.lk_window)
     frontend = MultiCameraFrontend(rig, config, stereo_pairs=stereo_pairs, threads=args.threads)
     frontend.process(-1, 0.0, frames[0])  # warm-up (first detection, OpenCV initialisation)

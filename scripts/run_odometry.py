@@ -26,6 +26,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", type=Path, default=None, help="VO config YAML (default: built-in defaults = configs/vo/default.yaml)")
     parser.add_argument("--mode", choices=MODES, default=None, help="override the config's mode")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--wheel-speed-from-groundtruth", type=float, default=None, metavar="SIGMA_M",
+                        help="simulate wheel odometry from groundtruth.csv with this noise (m) and enable the wheel-speed factor")
     args = parser.parse_args(argv)
     try:
         config = load_config(args.config)
@@ -38,8 +40,18 @@ def main(argv: list[str] | None = None) -> int:
         if dataset.measurements is None:
             raise AmpcError(f"{args.dataset}: no measurements.npz (this script runs on bearing measurements; image datasets need the frontend)")
         frames = dataset.measurements.frames(dataset.rig)
+        wheel = None
+        if args.wheel_speed_from_groundtruth is not None:
+            if dataset.groundtruth is None:
+                raise AmpcError(f"{args.dataset}: --wheel-speed-from-groundtruth needs groundtruth.csv")
+            import dataclasses
+
+            from ampc_vo.pipeline import wheel_odometry_from_poses
+
+            config = dataclasses.replace(config, scale=dataclasses.replace(config.scale, wheel_speed=True))
+            wheel = wheel_odometry_from_poses(dataset.groundtruth.timestamps, dataset.groundtruth.T_world_tractor, dataset.rig.axle_x("tractor"), args.wheel_speed_from_groundtruth)
         summary, _ = run_on_frames(dataset.rig, config, frames, args.out, total=dataset.measurements.frame_count,
-                                   progress=False if args.no_progress else None)
+                                   progress=False if args.no_progress else None, wheel_odometry=wheel)
     except AmpcError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

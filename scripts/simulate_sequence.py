@@ -29,12 +29,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     started = time.perf_counter()
-    # The renderer forks worker processes; an OpenCV thread pool created in this process before
-    # the fork deadlocks the workers (cv2.setNumThreads in a forked child waits forever). One
-    # OpenCV thread here avoids creating that pool.
-    import cv2
-
-    cv2.setNumThreads(1)
     try:
         result = simulate_dataset(args.config, args.out, with_images=not args.no_images, progress=True)
     except AmpcError as error:

@@ -282,3 +282,16 @@ def test_tracker_config_from_dict_validates():
     with pytest.raises(ConfigError, match="lk_window must be odd"):
         tracker_config_from_dict({"lk_window": 20})
     assert stereo_config_from_dict({"min_depth_m": 2}).min_depth_m == 2.0
+
+
+def test_threaded_frontend_gives_the_same_tracks():
+    rig = Rig({"tractor": Body("tractor", 1.0)}, (pinhole("a"), pinhole("b")))
+    images = [{"a": make_image(2.0 * k, 0.0), "b": make_image(0.0, 1.5 * k, seed=3)} for k in range(3)]
+    with MultiCameraFrontend(rig, threads=2) as threaded:
+        parallel = [threaded.process(k, 0.1 * k, frame) for k, frame in enumerate(images)]
+    serial_frontend = MultiCameraFrontend(rig)
+    serial = [serial_frontend.process(k, 0.1 * k, frame) for k, frame in enumerate(images)]
+    for left, right in zip(parallel, serial):
+        for name in ("a", "b"):
+            np.testing.assert_array_equal(left.cameras[name].track_ids, right.cameras[name].track_ids)
+            np.testing.assert_allclose(left.cameras[name].pixels, right.cameras[name].pixels, atol=1e-3)

@@ -110,3 +110,17 @@ def test_bad_inputs_raise_config_errors():
         route_from_list([{"type": "loop", "length": 10}], 5.0, "route.yaml")
     with pytest.raises(ConfigError, match="route.yaml: segments\\[1\\].radius"):
         route_from_list([{"type": "straight", "length": 10}, {"type": "turn", "angle_deg": 90}], 5.0, "route.yaml")
+
+
+def test_stop_segment_holds_the_vehicle_still_for_its_duration():
+    route = route_from_list([{"type": "straight", "length": 40}, {"type": "stop", "duration": 3},
+                             {"type": "turn", "angle_deg": 30, "radius": 40}], 8.0, "test")
+    trajectory = simulate_kinematics(route, 10.0, S_A, TRAILER_AXLE_X, initial_hitch_angle=0.1)
+    steps = np.linalg.norm(np.diff(trajectory.T_world_tractor[:, :3, 3], axis=0), axis=1)
+    still = steps < 1e-12
+    assert 29 <= still.sum() <= 31                                   # 3 s at 10 Hz
+    assert np.all(np.diff(np.flatnonzero(still)) == 1)               # one contiguous standstill
+    assert np.all(trajectory.speed[1:][still] == 0.0)
+    assert np.ptp(trajectory.hitch_angle[1:][still]) == 0.0          # the hitch does not move either
+    assert abs(trajectory.arc_length[np.flatnonzero(still)[0] + 1] - 40.0) < 0.01
+    assert np.max(steps) <= 0.8 + 1e-9 and trajectory.arc_length[-1] >= route.length

@@ -224,3 +224,36 @@ def test_klt_tracks_rendered_default_route(repo_root):
     assert pooled[90] >= 0.65, per_camera
     assert min(per_camera.values()) >= 0.45, per_camera
     assert np.median(np.concatenate(tracking_errors)) < 0.75  # tracked features go where the geometry says
+
+
+def test_realism_switches_noise_exposure_blur_and_moving_vehicle(default_rig, atlas, tmp_path):
+    """Sensor noise, exposure changes, motion blur and the moving vehicle change the images as asked."""
+    from ampc_vo.rig import Rig, replace_camera
+
+    front = default_rig.camera("front")
+    small = replace_camera(front, width=160, height=120, fx=80.0, fy=80.0, cx=79.5, cy=59.5)
+    rig = Rig(default_rig.bodies, (small,))
+    count = 4
+    T_world_tractor = np.stack([planar_pose(1.5 * k, 0.0, 0.0) for k in range(count)])
+    trajectory = Trajectory(np.arange(count) * 0.1, T_world_tractor, T_world_tractor.copy(), np.zeros(count))
+    road = Quad(np.array([-50.0, -3.5, 0.0]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 150.0, 7.0, "road", "asphalt", 4.0)
+    scene = Scene((road,))
+
+    def images(name: str, **switches) -> list[np.ndarray]:
+        options = RenderOptions(processes=1, **switches)
+        render_sequence(tmp_path / name, rig, trajectory, scene, options, progress=False, renderer=Renderer(scene, atlas, options))
+        return [cv2.imread(str(tmp_path / name / "images" / "front" / f"{k:06d}.png"), cv2.IMREAD_GRAYSCALE).astype(float) for k in range(count)]
+
+    clean = images("clean")
+    noisy = images("noisy", sensor_noise_sigma=3.0)
+    residual = noisy[0] - clean[0]
+    assert 2.5 < residual.std() < 3.5 and abs(residual.mean()) < 0.5
+    exposed = images("exposed", exposure_variation=0.3)
+    ratios = [np.median(e[:30] / np.maximum(c[:30], 1)) for e, c in zip(exposed, clean)]  # sky rows
+    assert max(ratios) - min(ratios) > 0.01 and all(0.6 < r < 1.4 for r in ratios)
+    blurred = images("blurred", motion_blur_samples=6, exposure_time_s=0.1)
+    sharpness = lambda image: cv2.Sobel(image, cv2.CV_64F, 0, 1)[75:].var()  # noqa: E731 - road, across the flow
+    assert sharpness(blurred[0]) < 0.8 * sharpness(clean[0])
+    vehicle = images("vehicle", moving_vehicle=True, vehicle_lead_m=12.0, vehicle_lateral_m=0.0)
+    changed = [np.abs(v - c).mean() for v, c in zip(vehicle, clean)]
+    assert min(changed) > 0.3 and changed[-1] > changed[0]  # in view in every frame, oncoming: growing
