@@ -5,8 +5,10 @@ Metrics (issue 5, written to ``metrics.json``):
 * ``tractor_ate_m``: RMSE of tractor positions after an SE(3) (Umeyama, no scale) alignment of the
   estimate to the truth; our scale is metric, so scale errors count.
 * ``tractor_ate_sim3_m``: the same after a Sim(3) alignment (scale corrected): shape error only.
-* ``trailer_ate_m``: RMSE of trailer positions after applying the **tractor's** SE(3) alignment
-  (both bodies share the estimated world frame, so the trailer is not aligned on its own).
+* ``trailer_ate_m``: RMSE of the trailer's axle midpoint (``GroundTruth.trailer_axle_x``; the
+  body origin is the hitch, shared with the tractor, so it would only repeat the tractor's error)
+  after applying the **tractor's** SE(3) alignment (both bodies share the estimated world frame,
+  so the trailer is not aligned on its own).
 * ``tractor_rpe_percent``: mean translation error of the relative tractor motion over segments of
   10 m of ground-truth path, divided by the segment length, in percent (KITTI-style drift).
 * ``hitch_rmse_deg`` / ``hitch_max_deg``: error of the hitch angle (wrapped difference).
@@ -49,6 +51,7 @@ class GroundTruth:
     T_world_tractor: np.ndarray
     T_world_trailer: np.ndarray | None = None
     hitch_angles: np.ndarray | None = None
+    trailer_axle_x: float = 0.0  # trailer ATE is measured at this point of the trailer x axis
 
 
 @dataclass(frozen=True)
@@ -197,7 +200,9 @@ def evaluate(
     trailer_ate = None
     trailer_est_xy = trailer_truth_xy = None
     if trailer is not None and len(trailer) >= 2 and truth.T_world_trailer is not None:
-        trailer_ref, trailer_est = _associate(_evo_trajectory(truth.timestamps, truth.T_world_trailer), _evo_trajectory(trailer.timestamps, trailer.poses), max_time_diff)
+        lever = np.eye(4)
+        lever[0, 3] = truth.trailer_axle_x
+        trailer_ref, trailer_est = _associate(_evo_trajectory(truth.timestamps, truth.T_world_trailer @ lever), _evo_trajectory(trailer.timestamps, trailer.poses @ lever), max_time_diff)
         trailer_est.transform(lie_algebra.se3(rotation, translation))
         trailer_ate = _ape_rmse(trailer_ref, trailer_est)
         trailer_est_xy, trailer_truth_xy = trailer_est.positions_xyz[:, :2], trailer_ref.positions_xyz[:, :2]
@@ -318,4 +323,5 @@ def load_groundtruth(dataset_dir: str | Path) -> GroundTruth:
     truth = dataset.groundtruth
     if truth is None:
         raise DatasetError(f"{dataset_dir}: dataset has no groundtruth.csv")
-    return GroundTruth(truth.timestamps, truth.T_world_tractor, truth.T_world_trailer, truth.hitch_angle)
+    axle_x = dataset.rig.axle_x("trailer") if dataset.rig.has_trailer else 0.0
+    return GroundTruth(truth.timestamps, truth.T_world_tractor, truth.T_world_trailer, truth.hitch_angle, axle_x)

@@ -9,18 +9,19 @@ motion cannot be estimated the caller's constant-velocity prediction is used.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 
 import numpy as np
 
 from ampc_vo.config import VoConfig
-from ampc_vo.geometry import make_pose, rot_z
+from ampc_vo.geometry import make_pose
 from ampc_vo.observations import FrameObservations, match_tracks
 from ampc_vo.rig import Camera, Rig
 from ampc_vo.smoother import MotionInit, MotionStatus
 from ampc_vo.solvers import RansacConfig as SolverRansacConfig
-from ampc_vo.solvers import SolverStatus, TractorMotionEstimate, ackermann_motion, estimate_hitch_angles, estimate_tractor_motion
+from ampc_vo.solvers import SolverStatus, TractorMotionEstimate, ackermann_motion, estimate_hitch_angles, estimate_tractor_motion, refine_joint
 
 logger = logging.getLogger(__name__)
 
@@ -89,6 +90,14 @@ def _inlier_tracks(pairs: list[CameraPairs], inlier_masks: list[np.ndarray]) -> 
     if len(inlier_masks) != len(pairs):
         return {}
     return {pair.camera.name: pair.track_ids[np.asarray(mask, dtype=bool)] for pair, mask in zip(pairs, inlier_masks) if len(mask) == len(pair)}
+
+
+def _chord_of(T_i_j: np.ndarray, axle_x: float) -> float:
+    """Signed chord of the axle midpoint for an Ackermann motion (DESIGN 2 (NH))."""
+    axle = np.array([axle_x, 0.0, 0.0])
+    displacement = T_i_j[:3, :3] @ axle + T_i_j[:3, 3] - axle
+    yaw = float(np.arctan2(T_i_j[1, 0], T_i_j[0, 0]))
+    return float(np.dot(displacement[:2], [np.cos(0.5 * yaw), np.sin(0.5 * yaw)]))
 
 
 def straight_motion(chord: float) -> np.ndarray:
@@ -177,6 +186,23 @@ class MotionInitializer:
                 trailer_pairs, (tractor.yaw_change, tractor.T_i_j[:3, 3]), trailer_axle_x, self._trailer_config,
                 prior_hitch_angle=hitch_prior, rng=self._rng,
             )
+            if estimate.ok and self.config.mode in ("full", "no_trailer_constraint"):
+                # joint refinement over both bodies (DESIGN 2.3: ~3x better with the trailer constraint);
+                # the trailer inliers are then re-classified under the refined tractor motion
+                # a straight tractor (chord from the prediction) still gets its scale from the trailer
+                # when the hitch angle is not zero: refine from the motion actually used
+                seed = dataclasses.replace(tractor.estimate, yaw_change=tractor.yaw_change, chord=_chord_of(tractor.T_i_j, self.rig.axle_x("tractor")), T_i_j=tractor.T_i_j)
+                joint = refine_joint(
+                    camera_pairs(self.rig, "tractor", first, second), trailer_pairs, seed, estimate,
+                    self.rig.axle_x("tractor"), trailer_axle_x, self._tractor_config, trailer_nonholonomic=self.config.mode == "full",
+                )
+                if joint.ok and np.all(np.isfinite(joint.T_i_j)):
+                    status = MotionStatus.OK if tractor.status is MotionStatus.SCALE_UNOBSERVABLE else tractor.status
+                    tractor = TractorMotion(joint.T_i_j, status, tractor.estimate, tractor.shared_tracks)
+                    estimate = estimate_hitch_angles(
+                        trailer_pairs, (tractor.yaw_change, tractor.T_i_j[:3, 3]), trailer_axle_x, self._trailer_config,
+                        prior_hitch_angle=hitch_prior, rng=self._rng,
+                    )
             if estimate.ok:
                 hitch_prev, hitch, trailer_status = estimate.hitch_angle_i, estimate.hitch_angle_j, MotionStatus.OK
                 inliers.update(_inlier_tracks(trailer_pairs, estimate.inlier_masks))
@@ -198,11 +224,4 @@ class MotionInitializer:
                     trailer_status = MotionStatus.TOO_FEW_TRACKS if trailer_status is not MotionStatus.STANDSTILL else trailer_status
                     T_trailer = predicted
         return MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer, inlier_tracks=inliers)
-
-
-def hitch_trailer_motion(T_tractor: np.ndarray, hitch_i: float, hitch_j: float) -> np.ndarray:
-    """Trailer motion implied by tractor motion and hitch angles, paper eqs. (3), (4):
-    ``R_B = Rz(θ)^T R Rz(θ')``, ``t_B = Rz(θ)^T t``."""
-    rotation = rot_z(hitch_i).T @ T_tractor[:3, :3] @ rot_z(hitch_j)
-    return make_pose(rotation, rot_z(hitch_i).T @ T_tractor[:3, 3])
 

@@ -25,11 +25,11 @@ import numpy as np
 
 from ampc_vo.config import VoConfig, save_config
 from ampc_vo.geometry import make_pose, relative_pose, rot_z, yaw_of
-from ampc_vo.motion_init import MotionInitializer, TractorMotion, straight_motion
+from ampc_vo.motion_init import MotionInitializer, TractorMotion
 from ampc_vo.observations import FrameObservations
 from ampc_vo.outputs import OutputWriter
 from ampc_vo.rig import Rig
-from ampc_vo.smoother import ArticulatedSmoother, BackendTiming, KeyframeEstimate, MotionStatus
+from ampc_vo.smoother import ArticulatedSmoother, KeyframeEstimate, MotionStatus
 
 logger = logging.getLogger(__name__)
 

@@ -3,28 +3,35 @@
 For every pixel the ray of its centre (``Camera.unproject``, pinhole or equidistant fisheye, computed
 once per camera) is intersected with the planes of the scene's quads; the nearest hit inside its
 rectangle wins (occlusion by depth). The hit's surface coordinates ``(a, b)`` give texture
-coordinates ``(a, b) / texture_scale``; the texture is sampled trilinearly from a mipmap atlas with
-``cv2.remap``, the level chosen from the pixel footprint on the surface (distance times the pixel's
-angular size, widened by the incidence angle) so that distant texture does not alias. Pixels whose
-ray hits nothing see a sky gradient.
+coordinates; the texture is sampled trilinearly from a mipmap atlas with ``cv2.remap``, the level
+chosen from the pixel footprint on the surface (distance times the pixel's angular size, widened by
+the incidence angle) so that distant texture does not alias. Pixels whose ray hits nothing see a
+sky gradient. Texture coordinates: vertical quads use ``(a, b) / texture_scale`` plus a random
+per-quad shift (no two walls look alike); horizontal quads (road, ground) use world ``(x, y)``, so
+the strips of a road continue each other without seams.
 
-Speed (``scripts/benchmark_render.py``): pixels are stored tile-major (16x16 tiles); every quad's
-bounding sphere is tested against every tile's cone of rays, so a quad is intersected only with the
-rays of the tiles it may cover. Large quads (ground, long facades) are split into pieces first so
-their spheres stay tight. Sequences are rendered by several processes.
+Speed (``scripts/benchmark_render.py``): pixels are stored tile-major (16x16 tiles). Each quad is
+tested against the tiles its projected outline's bounding box covers (quads reaching behind a
+pinhole lens are clipped at a near plane first), refined by its bounding sphere against each tile's
+cone of rays and by which side of its plane a tile's rays can reach; quads are processed near to far
+and skip tiles already filled with nearer surfaces. Large quads are split into pieces and collinear
+road strips merged. Sequences are rendered by several (spawned) processes.
 
 Conventions: ``T_world_camera = T_world_body @ T_body_camera`` (DESIGN 1), OpenCV camera axes.
 Road quads (``kind == 'road'``) carry painted lane markings along their ``axis_u`` (edge lines and a
-dashed centre line, across ``b`` in [0, height]).
+dashed centre line, across ``b`` in [0, height]), continuous over consecutive road strips.
+
+API: :class:`Renderer` (``render``, ``render_float``, ``depth_pass``), :func:`render_image`,
+:func:`render_sequence`, :class:`RenderOptions` / :func:`render_options_from_dict`.
 """
 from __future__ import annotations
 
 import logging
 import math
-import zlib
 import multiprocessing
 import os
-from dataclasses import dataclass, field, fields
+import zlib
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -101,26 +108,28 @@ def render_options_from_dict(raw: dict[str, Any] | None, source: str = "render")
 # ---------------------------------------------------------------------- per-camera precomputation
 @dataclass(frozen=True)
 class CameraRays:
-    """Pixel-centre rays of one camera, tile-major: ``rays[t, k]`` is pixel ``pixel_index[t, k]``.
+    """Pixel-centre rays of one camera, tile-major: ``tile_planes[:, t, k]`` is the ray of pixel
+    ``pixel_index[t, k]``.
 
     ``pixel_angle`` is the pixel's angular size (radians, sqrt of its solid angle); the tile cones
     (``tile_axis``, ``tile_cos``/``tile_half_angle``) contain every ray of their tile.
     """
 
-    rays: np.ndarray            # (T, P, 3) float32 unit rays, camera frame
+    tile_planes: np.ndarray     # (3, T, P) float32 unit rays (camera frame), one plane per component
     pixel_index: np.ndarray     # (T, P) int64 flat image index (tiles at the border repeat pixels)
     image_order: np.ndarray     # (H*W,) int64 position of each image pixel in the flattened tiles
     tile_axis: np.ndarray       # (T, 3) float64
     tile_half_angle: np.ndarray  # (T,) float64
     pixel_angle: np.ndarray     # (H, W) float32
     valid: np.ndarray           # (H, W) bool: inside the lens' field (fisheye image circle)
-    rays_image: np.ndarray      # (H, W, 3) float32
+    rays_planes: np.ndarray     # (3, H, W) float32 unit rays in image order, one plane per component
     camera_axis: np.ndarray     # (3,) mean ray
     camera_half_angle: float
     tile_row: np.ndarray        # (T,) tile grid row
     tile_axis_f32: np.ndarray
     tile_half_angle_f32: np.ndarray
     tile_sin_half: np.ndarray   # (T,) float32 sin(min(half angle, 90 deg))
+    tile_beyond_90: np.ndarray  # (T,) bool: some ray of the tile may point behind the lens plane
     tile_col: np.ndarray        # (T,) tile grid column
 
 
@@ -155,13 +164,16 @@ def camera_rays(camera: Camera, tile_size: int = 16) -> CameraRays:
     camera_axis /= np.linalg.norm(camera_axis)
     camera_half = float(np.arccos(np.clip((rays @ camera_axis).min(), -1.0, 1.0))) + 1e-3
     return CameraRays(
-        rays=tile_rays.astype(np.float32), pixel_index=pixel_index, image_order=image_order,
+        pixel_index=pixel_index, image_order=image_order,
+        tile_planes=np.ascontiguousarray(tile_rays.transpose(2, 0, 1)).astype(np.float32),
         tile_axis=axis, tile_half_angle=half_angle, pixel_angle=pixel_angle.astype(np.float32),
-        valid=valid, rays_image=rays.reshape(height, width, 3).astype(np.float32),
+        valid=valid,
+        rays_planes=np.ascontiguousarray(rays.reshape(height, width, 3).transpose(2, 0, 1)).astype(np.float32),
         camera_axis=camera_axis, camera_half_angle=camera_half,
         tile_row=np.repeat(np.arange(tiles_y), tiles_x), tile_col=np.tile(np.arange(tiles_x), tiles_y),
         tile_axis_f32=axis.astype(np.float32), tile_half_angle_f32=half_angle.astype(np.float32),
         tile_sin_half=np.sin(np.minimum(half_angle, np.pi / 2)).astype(np.float32),
+        tile_beyond_90=np.arccos(np.clip(axis[:, 2], -1.0, 1.0)) + half_angle >= np.deg2rad(89.0),
     )
 
 
@@ -216,6 +228,16 @@ def _road_chain_offsets(quads: Sequence[Quad]) -> np.ndarray:
                 offsets[index] = prev_offset + step
         previous = (start, np.asarray(quad.axis_u, float), offsets[index], quad.width)
     return offsets
+
+
+def _times(vectors: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """``vectors (N, 3) @ matrix`` for a (3, M) matrix or a (3,) vector, as three broadcast products.
+
+    No BLAS call: its thread pool costs more than these small products and oversubscribes the cores
+    (with OpenBLAS threads the renderer ran 2-3x slower)."""
+    if matrix.ndim == 1:
+        return vectors[:, 0] * matrix[0] + vectors[:, 1] * matrix[1] + vectors[:, 2] * matrix[2]
+    return vectors[:, 0:1] * matrix[0] + vectors[:, 1:2] * matrix[1] + vectors[:, 2:3] * matrix[2]
 
 
 _NEAR_PLANE_M = 1e-3
@@ -342,32 +364,21 @@ def _paint_markings(surface: np.ndarray, along: np.ndarray, across: np.ndarray, 
     width_px = np.maximum(footprint_across, 1e-3)
     along_px = np.maximum(footprint_along, 1e-3)
 
-    def band(distance: np.ndarray, half_width: float, pixel: np.ndarray) -> np.ndarray:
-        return np.clip((half_width - np.abs(distance)) / pixel + 0.5, 0.0, 1.0)
+    def ramp(value: np.ndarray) -> np.ndarray:
+        return np.minimum(np.maximum(value + np.float32(0.5), np.float32(0.0)), np.float32(1.0))
 
-    edge = np.maximum(band(across - 0.35, 0.075, width_px), band(across - (road_width - 0.35), 0.075, width_px))
-    phase = np.mod(along, 9.0)
-    dash_along = np.minimum(np.clip(phase / along_px + 0.5, 0, 1), np.clip((3.0 - phase) / along_px + 0.5, 0, 1))
-    centre = band(across - 0.5 * road_width, 0.06, width_px) * dash_along
-    coverage = np.maximum(edge, centre).astype(np.float32)
+    def band(distance: np.ndarray, half_width: float, pixel: np.ndarray) -> np.ndarray:
+        return ramp((np.float32(half_width) - np.abs(distance)) / pixel)
+
+    edge = np.maximum(band(across - np.float32(0.35), 0.075, width_px), band(across - (road_width - np.float32(0.35)), 0.075, width_px))
+    phase = along - np.float32(9.0) * np.floor(along / np.float32(9.0))
+    dash_along = np.minimum(ramp(phase / along_px), ramp((np.float32(3.0) - phase) / along_px))
+    centre = band(across - np.float32(0.5) * road_width, 0.06, width_px) * dash_along
+    coverage = np.maximum(edge, centre).astype(np.float32, copy=False)
     return surface + coverage * (np.float32(215.0) - surface)
 
 
-_POW2 = (2.0 ** np.arange(32)).astype(np.float32)
-_INV_POW2 = (1.0 / _POW2).astype(np.float32)
 _OUTLINE_SAMPLES = 8  # points per quad edge for the projected bounding box
-_MAP_WIDTH = 1024
-
-
-def _map_shape(count: int) -> tuple[int, int]:
-    """2-D shape for ``count`` remap samples (cv2.remap needs maps smaller than 32767 per side)."""
-    return (-(-count // _MAP_WIDTH), _MAP_WIDTH)
-
-
-def _pad_to(values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    out = np.zeros(shape[0] * shape[1], np.float32)
-    out[: values.size] = values
-    return out.reshape(shape)
 
 
 @dataclass(frozen=True)
@@ -379,6 +390,8 @@ class VisibilityBuffer:
     quad_id: np.ndarray
     coord_a: np.ndarray
     coord_b: np.ndarray
+    texture_s: np.ndarray  # texture coordinates (m) = the quad's texture map applied to (a, b)
+    texture_t: np.ndarray
     cos_incidence: np.ndarray
     quads: "PreparedQuads"
 
@@ -395,6 +408,7 @@ class Renderer:
         self.atlas = textures if isinstance(textures, TextureAtlas) else build_atlas(textures)
         self.quads = prepare_quads(merge_collinear_strips(scene.quads), self.atlas, self.options)
         self._rays: dict[tuple, CameraRays] = {}
+        self.last_stats: dict[str, int] = {}  # work of the last depth pass (candidates, quads and ray tests)
 
     def rays_of(self, camera: Camera) -> CameraRays:
         key = (camera.name, camera.model, camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
@@ -417,7 +431,7 @@ class Renderer:
         inside = distance <= quads.radius * 1.0001
         safe_distance = np.maximum(distance, 1e-9)
         angular_radius = np.arcsin(np.clip(quads.radius / safe_distance, 0.0, 1.0))
-        cos_axis = (centre @ rays.camera_axis) / safe_distance
+        cos_axis = _times(centre, rays.camera_axis) / safe_distance
         in_view = inside | (np.arccos(np.clip(cos_axis, -1, 1)) <= rays.camera_half_angle + angular_radius)
         candidates = np.flatnonzero(in_view)
         num_tiles = len(rays.tile_axis)
@@ -456,23 +470,44 @@ class Renderer:
                 pixels = np.clip(pixels, -1e6, 1e6)
                 box[index] = (np.floor((pixels[:, 0].min() - 2.0) / tile), np.floor((pixels[:, 0].max() + 2.0) / tile),
                               np.floor((pixels[:, 1].min() - 2.0) / tile), np.floor((pixels[:, 1].max() + 2.0) / tile))
+        wide = np.zeros(candidates.size, bool)  # quads that also need the tiles seeing behind the lens
+        if camera.model == "fisheye" and not front.all():
+            # Clip at a near plane too; the clipped polygon's edges are curves in a fisheye image, so
+            # they are sampled densely. Parts behind the lens plane can only appear in tiles whose
+            # rays reach beyond 90 degrees of incidence (image corners of very wide lenses).
+            tile = self.options.tile_size
+            steps = np.linspace(0.0, 1.0, 32, endpoint=False)[:, None]
+            for index in np.flatnonzero(~front):
+                corners = outline[index, ::_OUTLINE_SAMPLES]
+                polygon = _clip_polygon_near(corners, _NEAR_PLANE_M)
+                wide[index] = bool(np.any(corners[:, 2] < _NEAR_PLANE_M))
+                if len(polygon) == 0:
+                    box[index] = (1, 0, 1, 0)  # empty (the wide tiles may still apply)
+                    continue
+                samples = (polygon[:, None, :] + steps[None] * (np.roll(polygon, -1, axis=0) - polygon)[:, None, :]).reshape(-1, 3)
+                pixels, _ = camera.project(samples)
+                margin = 4.0
+                box[index] = (np.floor((pixels[:, 0].min() - margin) / tile), np.floor((pixels[:, 0].max() + margin) / tile),
+                              np.floor((pixels[:, 1].min() - margin) / tile), np.floor((pixels[:, 1].max() + margin) / tile))
         box[:, 0::2] = np.maximum(box[:, 0::2], 0)
         box[:, 1] = np.minimum(box[:, 1], tiles_x - 1)
         box[:, 3] = np.minimum(box[:, 3], tiles_y - 1)
-        nonempty = (box[:, 0] <= box[:, 1]) & (box[:, 2] <= box[:, 3])
-        candidates, box = candidates[nonempty], box[nonempty]
+        nonempty = ((box[:, 0] <= box[:, 1]) & (box[:, 2] <= box[:, 3])) | wide
+        candidates, box, wide = candidates[nonempty], box[nonempty], wide[nonempty]
         if candidates.size == 0:
             return candidates, np.zeros((0, num_tiles), bool)
         overlap = ((rays.tile_col[None, :] >= box[:, 0:1]) & (rays.tile_col[None, :] <= box[:, 1:2])
                    & (rays.tile_row[None, :] >= box[:, 2:3]) & (rays.tile_row[None, :] <= box[:, 3:4]))
+        if wide.any():
+            overlap[wide] |= rays.tile_beyond_90[None, :]
         # Sphere vs tile cone: angle(axis, centre) <= half_t + radius_q, as cos(angle) >= cos(sum).
         direction = (centre[candidates] / safe_distance[candidates, None]).astype(np.float32)
-        cos_angle = direction @ rays.tile_axis_f32.T
+        cos_angle = _times(direction, rays.tile_axis_f32.T)
         total = rays.tile_half_angle_f32[None, :] + angular_radius[candidates, None].astype(np.float32)
         overlap &= (cos_angle >= np.cos(np.minimum(total, np.float32(np.pi)))) | inside[candidates, None]
         # Plane side: need a ray d of the tile with sign(d.n) == sign(o.n).
         side = np.sign(np.einsum("qk,qk->q", origin_c[candidates], normal_c[candidates]))
-        toward = ((side[:, None] * normal_c[candidates]).astype(np.float32) @ rays.tile_axis_f32.T)
+        toward = _times((side[:, None] * normal_c[candidates]).astype(np.float32), rays.tile_axis_f32.T)
         overlap &= toward > -rays.tile_sin_half[None, :]
         keep = overlap.any(axis=1)
         return candidates[keep], overlap[keep]
@@ -488,10 +523,11 @@ class Renderer:
         quad_id = np.full((num_tiles, tile_pixels), -1, np.int32)
         axes_c = np.zeros((0, 3, 3), np.float32)
         plane = np.zeros((0, 3))
+        self.last_stats = {"candidates": 0, "quads_tested": 0, "ray_tests": 0}
         if len(quads):
-            centre = (quads.centre - camera_position) @ R_world_camera
-            origin_c = (quads.origin - camera_position) @ R_world_camera
-            u_c, v_c, n_c = quads.axis_u @ R_world_camera, quads.axis_v @ R_world_camera, quads.normal @ R_world_camera
+            centre = _times(quads.centre - camera_position, R_world_camera)
+            origin_c = _times(quads.origin - camera_position, R_world_camera)
+            u_c, v_c, n_c = (_times(axis, R_world_camera) for axis in (quads.axis_u, quads.axis_v, quads.normal))
             steps = np.linspace(0.0, 1.0, _OUTLINE_SAMPLES, endpoint=False)
             w, h = quads.width[:, None, None], quads.height[:, None, None]
             along_u = steps[None, :, None] * w * u_c[:, None, :]
@@ -508,19 +544,25 @@ class Renderer:
             half_w, half_h = (0.5 * quads.width).astype(np.float32), (0.5 * quads.height).astype(np.float32)
             centre_u, centre_v = (plane[:, 1] + half_w).astype(np.float32), (plane[:, 2] + half_h).astype(np.float32)
             tile_far = np.full(num_tiles, np.inf, np.float32)  # farthest depth in each tile (occlusion culling)
+            tested_quads = tested_pixels = 0
             for k in order:
                 q = int(candidates[k])
                 tiles = np.flatnonzero(overlap[k])
                 tiles = tiles[tile_far[tiles] > nearest[k]]
                 if tiles.size == 0:
                     continue
-                projections = (rays.rays[tiles].reshape(-1, 3) @ axes_c[q]).reshape(tiles.size, tile_pixels, 3)  # d.n, d.u, d.v
+                tested_quads += 1
+                tested_pixels += tiles.size * tile_pixels
+                ray_x, ray_y, ray_z = rays.tile_planes[0][tiles], rays.tile_planes[1][tiles], rays.tile_planes[2][tiles]
+                n_x, n_y, n_z = axes_c[q, :, 0]
                 with np.errstate(divide="ignore", invalid="ignore"):
-                    t = plane_n[q] / projections[..., 0]
+                    t = plane_n[q] / (ray_x * n_x + ray_y * n_y + ray_z * n_z)
                 current = depth[tiles]
                 hit = (t > _MIN_HIT_DISTANCE) & (t < current)
-                hit &= np.abs(t * projections[..., 1] - centre_u[q]) <= half_w[q]
-                hit &= np.abs(t * projections[..., 2] - centre_v[q]) <= half_h[q]
+                u_x, u_y, u_z = axes_c[q, :, 1]
+                hit &= np.abs(t * (ray_x * u_x + ray_y * u_y + ray_z * u_z) - centre_u[q]) <= half_w[q]
+                v_x, v_y, v_z = axes_c[q, :, 2]
+                hit &= np.abs(t * (ray_x * v_x + ray_y * v_y + ray_z * v_z) - centre_v[q]) <= half_h[q]
                 if not hit.any():
                     continue
                 np.copyto(current, t, where=hit)
@@ -529,30 +571,34 @@ class Renderer:
                 ids = quad_id[tiles]
                 np.copyto(ids, np.int32(q), where=hit)
                 quad_id[tiles] = ids
+            self.last_stats = {"candidates": int(candidates.size), "quads_tested": tested_quads, "ray_tests": tested_pixels}
         order = rays.image_order
         shape = (camera.height, camera.width)
         depth_image = depth.ravel()[order].reshape(shape)
         id_image = quad_id.ravel()[order].reshape(shape)
         # Surface coordinates and incidence of the winning quad, per pixel (one gather of its constants).
-        coord_a = np.zeros(shape, np.float32)
-        coord_b = np.zeros(shape, np.float32)
-        cos_incidence = np.ones(shape, np.float32)
+        # Surface and texture coordinates and incidence of the winning quad, per pixel, on whole-image
+        # arrays (sky pixels use quad 0 at distance 0 and are ignored by the shading).
         hit_image = id_image >= 0
-        if hit_image.any():
-            q = id_image[hit_image]
+        q = np.maximum(id_image, 0).astype(np.intp)
+        t = np.where(hit_image, depth_image, np.float32(0.0))
+        ray_x, ray_y, ray_z = rays.rays_planes
+        if len(quads):
             table = np.concatenate([axes_c.reshape(-1, 9), plane.astype(np.float32), quads.offset_a[:, None].astype(np.float32),
-                                    quads.offset_b[:, None].astype(np.float32)], axis=1)
-            constants = table[q]
-            ray = rays.rays_image[hit_image]
-            t = depth_image[hit_image]
-            # axes_c[q] columns are n, u, v: row-major flattening gives (n0 u0 v0 n1 u1 v1 n2 u2 v2).
-            d_n = ray[:, 0] * constants[:, 0] + ray[:, 1] * constants[:, 3] + ray[:, 2] * constants[:, 6]
-            d_u = ray[:, 0] * constants[:, 1] + ray[:, 1] * constants[:, 4] + ray[:, 2] * constants[:, 7]
-            d_v = ray[:, 0] * constants[:, 2] + ray[:, 1] * constants[:, 5] + ray[:, 2] * constants[:, 8]
-            coord_a[hit_image] = t * d_u - constants[:, 10] + constants[:, 12]
-            coord_b[hit_image] = t * d_v - constants[:, 11] + constants[:, 13]
-            cos_incidence[hit_image] = np.abs(d_n)
-        return VisibilityBuffer(depth_image, id_image, coord_a, coord_b, cos_incidence, quads)
+                                    quads.offset_b[:, None].astype(np.float32), quads.texture_map.reshape(-1, 6).astype(np.float32)], axis=1)
+        else:
+            table = np.zeros((1, 20), np.float32)
+        column = np.take(np.ascontiguousarray(table.T), q, axis=1)  # (20, H, W): one gather, contiguous planes
+        # axes_c columns are n, u, v: row-major flattening gives (n0 u0 v0 n1 u1 v1 n2 u2 v2).
+        d_n = ray_x * column[0] + ray_y * column[3] + ray_z * column[6]
+        d_u = ray_x * column[1] + ray_y * column[4] + ray_z * column[7]
+        d_v = ray_x * column[2] + ray_y * column[5] + ray_z * column[8]
+        coord_a = t * d_u - column[10] + column[12]
+        coord_b = t * d_v - column[11] + column[13]
+        texture_s = column[14] * coord_a + column[15] * coord_b + column[16]
+        texture_t = column[17] * coord_a + column[18] * coord_b + column[19]
+        cos_incidence = np.abs(d_n)
+        return VisibilityBuffer(depth_image, id_image, coord_a, coord_b, texture_s, texture_t, cos_incidence, quads)
 
     # ------------------------------------------------------------------ shading
     def render_float(self, camera: Camera, T_world_camera: np.ndarray, extra_quads: Sequence[Quad] = ()) -> np.ndarray:
@@ -567,12 +613,13 @@ class Renderer:
         hit = visible.quad_id >= 0
         image = np.empty(hit.shape, np.float32)
         if hit.any():
-            # Full-image arrays (sky pixels use quad 0 and are overwritten below): no mask gathers.
-            q = np.maximum(visible.quad_id, 0)
+            # Full-image arrays (sky pixels use quad 0, depth inf, and are overwritten below): no mask gathers.
+            q = np.maximum(visible.quad_id, 0).astype(np.intp)
             t = visible.depth
-            np.copyto(t, np.float32(1.0), where=~hit)
-            texels_per_m = (atlas.size / quads.texture_scale).astype(np.float32)[q]
-            a, b = visible.coord_a, visible.coord_b
+            # Per-quad constants, gathered per pixel in one call (contiguous planes).
+            constants = np.take(np.stack([atlas.size / quads.texture_scale, atlas.level_x[quads.texture_index] + (atlas.pad - 0.5),
+                                          quads.gain, quads.road, quads.road_along, quads.parent_height]).astype(np.float32), q, axis=1)
+            texels_per_m, texture_x, gain, road_flag, road_along, road_width = constants
             incidence = np.maximum(visible.cos_incidence, np.float32(0.02))
             incidence = np.sqrt(incidence) if options.incidence_exponent == 0.5 else incidence ** np.float32(options.incidence_exponent)
             pixel_m = t * rays.pixel_angle
@@ -583,35 +630,36 @@ class Renderer:
             np.clip(level, 0.0, atlas.num_levels - 1.0, out=level)
             level0 = level.astype(np.int32)
             fraction = level - level0
-            level1 = np.minimum(level0 + 1, atlas.num_levels - 1)
-            # Wrap once in level-0 texels: the wrapped coordinate of level l is that divided by 2^l.
-            # Texture rows grow downwards while b grows along axis_v (up on walls): flip b.
+            # Wrap once in level-0 texels: the wrapped coordinate of level l is that times 2^-l.
+            # Texture rows grow downwards while b grows along axis_v (up on walls): flip t.
             size = np.float32(atlas.size)
             inv_size = np.float32(1.0 / atlas.size)
-            tex_map = quads.texture_map.reshape(-1, 6).astype(np.float32)[q]  # (H, W, 6)
-            s_texels = (tex_map[..., 0] * a + tex_map[..., 1] * b + tex_map[..., 2]) * texels_per_m
-            t_texels = -(tex_map[..., 3] * a + tex_map[..., 4] * b + tex_map[..., 5]) * texels_per_m
+            s_texels = visible.texture_s * texels_per_m
+            t_texels = visible.texture_t * -texels_per_m
             s_texels -= size * np.floor(s_texels * inv_size)
             t_texels -= size * np.floor(t_texels * inv_size)
-            texture_x = atlas.level_x[quads.texture_index].astype(np.float32)[q] + np.float32(atlas.pad - 0.5)
-            level_y = atlas.level_y.astype(np.float32) + np.float32(atlas.pad - 0.5)
+            # Level l starts at row 2 S (1 - 2^-l) + 2 pad l of the atlas (build_atlas stacks levels),
+            # so map_y = 2 S + pad - 0.5 + 2 pad l + (t - 2 S) 2^-l: no per-pixel table lookups.
+            level_rows = (level0 * (2 * atlas.pad) + (2 * atlas.size)).astype(np.float32) + np.float32(atlas.pad - 0.5)
+            map_x0 = np.ldexp(s_texels, -level0).astype(np.float32, copy=False)
+            map_y0 = np.ldexp(t_texels - np.float32(2 * atlas.size), -level0).astype(np.float32, copy=False)
             samples = []
-            for lvl in (level0, level1):
-                inverse = _INV_POW2[lvl]
-                map_x = texture_x + s_texels * inverse
-                map_y = level_y[lvl] + t_texels * inverse
+            for scale, rows in ((np.float32(1.0), level_rows), (np.float32(0.5), level_rows + np.float32(2 * atlas.pad))):
+                # The next level (l + 1) beyond the last one is sampled with weight fraction = 0 only.
+                map_x, map_y = texture_x + scale * map_x0, rows + scale * map_y0
                 samples.append(cv2.remap(atlas.image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
             surface = samples[0] + fraction * (samples[1] - samples[0])
-            surface *= quads.gain.astype(np.float32)[q]
-            road = hit & quads.road[q]
-            if road.any():
-                along = a[road] + quads.road_along.astype(np.float32)[q][road]
-                surface[road] = _paint_markings(surface[road], along, b[road], quads.parent_height.astype(np.float32)[q][road],
-                                                pixel_m[road], footprint_m[road])
+            surface *= gain
+            road = np.flatnonzero(hit & (road_flag > 0))
+            if road.size:
+                along = visible.coord_a.ravel()[road] + road_along.ravel()[road]
+                surface.ravel()[road] = _paint_markings(surface.ravel()[road], along, visible.coord_b.ravel()[road],
+                                                        road_width.ravel()[road], pixel_m.ravel()[road], footprint_m.ravel()[road])
             image = surface
         sky = ~hit
         if sky.any():  # brighter towards the horizon
-            elevation = np.clip(rays.rays_image[sky] @ R_world_camera[2, :].astype(np.float32), 0.0, 1.0)
+            up = R_world_camera[2, :].astype(np.float32)  # world z of the rays
+            elevation = np.clip(rays.rays_planes[0][sky] * up[0] + rays.rays_planes[1][sky] * up[1] + rays.rays_planes[2][sky] * up[2], 0.0, 1.0)
             image[sky] = options.sky_horizon + (options.sky_zenith - options.sky_horizon) * np.sqrt(elevation)
         image[~rays.valid] = 0.0
         return image
@@ -634,7 +682,8 @@ def render_image(scene: Scene, camera: Camera, T_world_camera: np.ndarray,
 
 # ---------------------------------------------------------------------- realism effects
 def exposure_gain(options: RenderOptions, timestamp: float, camera_index: int) -> float:
-    """Smooth exposure/gain change: 1 + amplitude * (sum of three random-phase sines), per camera."""
+    """Smooth exposure/gain change per camera: ``1 + 1.5 * amplitude * mean of three sines`` with
+    random periods (2-12 s) and phases, a deterministic function of time (any frame order)."""
     if options.exposure_variation <= 0:
         return 1.0
     rng = np.random.default_rng([options.seed, 7919, camera_index])

@@ -9,8 +9,10 @@ Factors added with keyframe k (``j`` < k are the keyframes still in the window):
 * GEC (paper eq. (1), one vectorised factor per camera and keyframe pair): tractor cameras on
   ``X(j), X(k)``, trailer cameras on ``Y(j), Y(k)``, for every pair with ``k - j <=
   max_pair_gap`` that shares enough tracks and moved (the residual is undefined at standstill).
-  Correspondences are gated by their Sampson residual under the initial poses; Huber (Scalar
-  reweighting) handles what remains.
+  Outliers: an observation is used only if the RANSAC of its keyframe pair (k-1, k) kept it
+  (``MotionInit.inlier_tracks``; per-frame outliers otherwise survive into longer pairs and a
+  handful of them, through their large Sampson Jacobians, biased the window by metres), then
+  gated by its Sampson residual under the initial poses; Huber (Scalar reweighting) on the rest.
 * Between consecutive keyframes: non-holonomic (DESIGN (NH)) of the tractor; of the trailer
   (modes ``full``, ``separate``); planar motion of each body; a hitch random walk ``A(k-1) ->
   A(k)`` whose sigma grows with distance and time, so an unobservable θ holds its value with a
@@ -28,7 +30,12 @@ Modes (issue 5): ``full``; ``tractor_only`` (no Y, A); ``no_trailer_constraint``
 trajectories: the hitch displacement is common to both bodies, so for a keyframe pair
 ``θ_i = heading(t_tractor) - heading(t_trailer)`` and ``θ_j = θ_i + ψ - φ``).
 
-Every keyframe publishes the poses, θ and its 1-sigma from ``gtsam.Marginals``.
+Every keyframe publishes the poses, θ and its 1-sigma from ``gtsam.Marginals``: at once
+(``output.publish: latest``, causal) or when it leaves the window (``lagged``, fully smoothed,
+the default). An update that fails (ill-conditioned window) is retried with the new keyframe
+anchored to its initial motion, and as a last resort the smoother restarts at that keyframe.
+Priors on relative poses use ``factors.relative_pose.RelativePoseFactor``, not gtsam's
+``BetweenFactorPose3``, whose Jacobian is NaN near the identity in gtsam 4.3.
 """
 from __future__ import annotations
 
@@ -42,7 +49,6 @@ import numpy as np
 from gtsam.symbol_shorthand import A, X, Y
 
 from ampc_vo.config import VoConfig
-from ampc_vo.errors import AmpcError
 from ampc_vo.epipolar import gec_sampson
 from ampc_vo.geometry import make_pose, relative_pose, rot_z, wrap_angle, yaw_of
 from ampc_vo.observations import FrameObservations, match_tracks
@@ -226,6 +232,9 @@ class ArticulatedSmoother:
         self._estimate = self._smoother.calculateEstimate()
         timing.optimisation = time.perf_counter() - started
         self._forget_old(keyframe.timestamp)
+        if self.use_trailer and not self.joint:
+            for index in sorted(self._window):  # refresh θ of mode separate from the smoothed trajectories
+                self._separate_hitch_angle(self._window[index])
 
         started = time.perf_counter()
         self._marginals = self._compute_marginals(keyframe.index)
@@ -553,7 +562,8 @@ class ArticulatedSmoother:
             return self._separate_hitch[k]
         previous = self._separate_hitch.get(k - 1, 0.0)
         if (k - 1) not in self._window:
-            return previous
+            self._separate_hitch.setdefault(k, previous)
+            return self._separate_hitch[k]
         T_tractor = relative_pose(self._estimate.atPose3(X(k - 1)).matrix(), self._estimate.atPose3(X(k)).matrix())
         T_trailer = relative_pose(self._estimate.atPose3(Y(k - 1)).matrix(), self._estimate.atPose3(Y(k)).matrix())
         if keyframe.init.tractor_status is MotionStatus.STANDSTILL or np.linalg.norm(T_tractor[:2, 3]) < self.config.keyframes.standstill_distance_m:
@@ -562,7 +572,8 @@ class ArticulatedSmoother:
             hitch_previous = np.arctan2(T_tractor[1, 3], T_tractor[0, 3]) - np.arctan2(T_trailer[1, 3], T_trailer[0, 3])
             hitch = float(wrap_angle(hitch_previous + yaw_of(T_trailer) - yaw_of(T_tractor)))
         self._separate_hitch[k] = hitch
-        self._separate_hitch.pop(k - 3, None)
+        for old in [index for index in self._separate_hitch if index < min(self._window, default=k) - 2]:
+            del self._separate_hitch[old]
         return hitch
 
     def _publish(self, keyframe: _Keyframe, sigma: float | None) -> KeyframeEstimate:
@@ -571,7 +582,7 @@ class ArticulatedSmoother:
         T_world_trailer = hitch = None
         if self.use_trailer:
             T_world_trailer = self._estimate.atPose3(Y(k)).matrix()
-            hitch = self._estimate.atDouble(A(k)) if self.joint else self._separate_hitch_angle(keyframe)
+            hitch = self._estimate.atDouble(A(k)) if self.joint else self._separate_hitch.get(k)
         return KeyframeEstimate(
             index=k, frame=keyframe.frame, timestamp=keyframe.timestamp,
             T_world_tractor=T_world_tractor, T_world_trailer=T_world_trailer,

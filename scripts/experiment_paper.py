@@ -44,7 +44,7 @@ def run_case(route: str, noise: float, outliers: float, config, modes) -> list[d
         # noise model and thresholds follow the pixel noise (as a user would set them for a camera)
         mode_config = dataclasses.replace(
             mode_config,
-            smoother=dataclasses.replace(mode_config.smoother, pixel_sigma=max(noise, 0.5), gate_px=max(mode_config.smoother.gate_px, 4.0 * noise)),
+            smoother=dataclasses.replace(mode_config.smoother, pixel_sigma=max(mode_config.smoother.pixel_sigma, noise), gate_px=max(mode_config.smoother.gate_px, 4.0 * noise)),
             ransac=dataclasses.replace(mode_config.ransac, threshold_px=max(mode_config.ransac.threshold_px, 3.0 * noise)),
         )
         started = time.perf_counter()

@@ -126,3 +126,12 @@ def test_output_folder_files_and_plot(tmp_path):
     assert set(data) >= {"frames", "distance_m", "tractor_ate_m", "tractor_ate_sim3_m", "trailer_ate_m", "tractor_rpe_percent", "hitch_rmse_deg", "hitch_max_deg", "seconds_per_frame"}
     plot_evaluation(evaluation, out / "evaluation.png")
     assert (out / "evaluation.png").stat().st_size > 10_000
+
+
+def test_trailer_ate_at_the_axle_sees_hitch_errors():
+    """A hitch-angle error moves the trailer axle (8 m behind the hitch) but not the hitch itself."""
+    truth = _truth()
+    truth = GroundTruth(truth.timestamps, truth.T_world_tractor, truth.T_world_trailer, truth.hitch_angles, trailer_axle_x=-8.0)
+    rotated = np.array([pose @ make_pose(rot_z(np.radians(1.0)), np.zeros(3)) for pose in truth.T_world_trailer])
+    result = evaluate(truth, Trajectory(truth.timestamps, truth.T_world_tractor), Trajectory(truth.timestamps, rotated)).metrics
+    assert result.trailer_ate_m == pytest.approx(2 * 8.0 * np.sin(np.radians(0.5)), rel=1e-6)

@@ -1,14 +1,13 @@
 """Tests of the renderer and textures (issue 6): geometric truth, occlusion, anti-aliasing, KLT."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
 from ampc_vo.errors import ConfigError
-from ampc_vo.geometry import invert_pose, make_pose, planar_pose, rot_x, rot_y, rot_z
+from ampc_vo.geometry import make_pose, planar_pose, rot_x, rot_y, rot_z
 from ampc_vo.kinematics import Trajectory
 from ampc_vo.render import Renderer, RenderOptions, render_image, render_options_from_dict, render_sequence
 from ampc_vo.scene import Quad, Scene

