@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from ampc_vo.epipolar import gec_sampson
+from ampc_vo.datasets.frame_images import load_frame_images
 from ampc_vo.errors import ConfigError, DatasetError
 from ampc_vo.geometry import invert_pose
 from ampc_vo.observations import CameraObservations, FrameObservations
@@ -621,19 +622,6 @@ class ImageDataset(Protocol):
     def __len__(self) -> int: ...
 
     def load_image(self, frame: int, camera: str) -> np.ndarray: ...
-
-
-def load_frame_images(dataset: ImageDataset, frame: int) -> dict[str, np.ndarray | None]:
-    """All cameras' images of one frame; a missing or corrupt image becomes ``None`` with a warning
-    (the tracker of that camera re-initialises; the run goes on)."""
-    images: dict[str, np.ndarray | None] = {}
-    for camera in dataset.camera_names:
-        try:
-            images[camera] = dataset.load_image(frame, camera)
-        except DatasetError as error:
-            logger.warning("frame %d: %s; camera %s skipped", frame, error, camera)
-            images[camera] = None
-    return images
 
 
 def track_dataset(dataset: ImageDataset, frontend: MultiCameraFrontend, start: int = 0, stop: int | None = None) -> Iterator[FrontendResult]:

@@ -21,6 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ampc_vo.datasets.frame_images import load_frame_images
 from ampc_vo.errors import DatasetError
 from ampc_vo.evaluation import GroundTruth
 from ampc_vo.geometry import invert_pose, make_pose
@@ -213,14 +214,7 @@ class KittiDataset:
     def images(self, frame: int) -> dict[str, np.ndarray | None]:
         """All cameras' images at ``frame``; a missing or corrupt one is ``None`` with a warning
         (the frontend then re-initialises that camera instead of stopping the run)."""
-        result: dict[str, np.ndarray | None] = {}
-        for camera in self.camera_names:
-            try:
-                result[camera] = self.load_image(frame, camera)
-            except DatasetError as error:
-                logger.warning("frame %d: %s; continuing without camera %s", frame, error, camera)
-                result[camera] = None
-        return result
+        return load_frame_images(self, frame)
 
 
 def camera_poses(T_world_body: np.ndarray, T_body_camera: np.ndarray) -> np.ndarray:
