@@ -85,7 +85,7 @@ class Measurements:
             selected = rows[self.camera_index[rows] == index]
             pixels = self.pixel[selected]
             bearings = rig.camera(name).unproject(pixels) if len(selected) else np.zeros((0, 3))
-            cameras[name] = CameraObservations(name, self.track_id[selected].copy(), pixels.copy(), bearings)
+            cameras[name] = CameraObservations(name, self.track_id[selected].copy(), pixels.copy(), bearings, self.landmark_id[selected].copy())
         return FrameObservations(frame=int(frame), timestamp=float(self.timestamps[frame]), cameras=cameras)
 
     def frames(self, rig: Rig | None = None) -> Iterator[FrameObservations]:

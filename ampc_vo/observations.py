@@ -18,12 +18,19 @@ class CameraObservations:
     ``track_ids`` (K,) int64 are unique within the camera: the same id in two frames of the same
     camera is the same physical point. ``pixels`` (K, 2); ``bearings`` (K, 3) unit vectors in the
     camera frame (OpenCV axes).
+
+    ``landmark_ids`` (K,) int64 or None: optional association *across* cameras of one rig: equal
+    values in two cameras (at any frames) are the same physical point, -1 means unknown. Sources:
+    the simulator's ground-truth landmark index (an ideal appearance matcher) and the frontend's
+    stereo matches (KITTI left/right). The backend uses them for cross-camera (two-camera form)
+    epipolar correspondences, which make metric scale observable in straight driving.
     """
 
     camera: str
     track_ids: np.ndarray
     pixels: np.ndarray
     bearings: np.ndarray
+    landmark_ids: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.track_ids.shape[0])

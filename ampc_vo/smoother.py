@@ -86,6 +86,8 @@ class MotionInit:
     T_trailer: np.ndarray | None = None
     inlier_tracks: dict[str, np.ndarray] = field(default_factory=dict)  # per camera: RANSAC inliers of (k-1, k)
     wheel_chord: float | None = None  # measured chord of the tractor axle midpoint (wheel odometry), metres
+    # visual metric-scale measurement of the same chord (e.g. ground-plane scale): (chord m, sigma m)
+    scale_chord: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -394,6 +396,12 @@ class ArticulatedSmoother:
 
                 wheel_noise = gtsam.noiseModel.Isotropic.Sigma(1, self.config.scale.wheel_speed_sigma_m)
                 pending.graph.add(WheelSpeedFactor(X(previous), X(k), self.rig.axle_x("tractor"), float(init.wheel_chord), wheel_noise))
+            if body == "tractor" and init.scale_chord is not None:
+                from factors import WheelSpeedFactor
+
+                chord, chord_sigma = init.scale_chord
+                chord_noise = _robust(gtsam.noiseModel.Isotropic.Sigma(1, float(chord_sigma)), self.config.smoother.huber_k)
+                pending.graph.add(WheelSpeedFactor(X(previous), X(k), self.rig.axle_x("tractor"), float(chord), chord_noise))
 
     def _initial_hitch(self, keyframe: _Keyframe, pending: _Pending) -> float:
         """θ_k: the 1-point RANSAC estimate if any, else held (standstill) or predicted by the
