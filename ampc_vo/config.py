@@ -16,10 +16,14 @@ from typing import Any
 import yaml
 
 from ampc_vo.errors import ConfigError
+from ampc_vo.frontend import StereoConfig, TrackerConfig
 
 MODES = ("full", "tractor_only", "no_trailer_constraint", "separate")
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
 PUBLISH_POLICIES = ("latest", "lagged")
+# where the frames' observations come from (issue 7): images through the frontend when the dataset
+# has them, else the simulator's bearing measurements (``auto``); or forced
+SOURCES = ("auto", "images", "bearings")
 
 
 @dataclass(frozen=True)
@@ -109,11 +113,19 @@ class SmootherConfig:
 @dataclass(frozen=True)
 class ScaleConfig:
     """Aids for metric scale (DESIGN 2.3): a smooth-speed prior between consecutive keyframes
-    (``null`` disables it) and the optional wheel-speed factor (off by default)."""
+    (``null`` disables it) and the optional wheel-speed factor (off by default).
+
+    ``ground_plane``: measure the tractor axle chord from road points seen by the tractor cameras
+    and their known height above the road (``ampc_vo.ground_scale``); ``ground_z_m``: z of the road
+    surface in the body frame (body origin at the hitch); ``ground_height_sigma_m``: uncertainty of
+    the cameras' height above the road (suspension, camber)."""
 
     smooth_speed_sigma_mps2: float | None = 1.0
     wheel_speed: bool = False
     wheel_speed_sigma_m: float = 0.05
+    ground_plane: bool = False
+    ground_z_m: float = 0.0
+    ground_height_sigma_m: float = 0.02
     bootstrap_pairs: int = 3
     bootstrap_interval_s: float = 0.5
     bootstrap_max_s: float = 30.0
@@ -125,6 +137,9 @@ class ScaleConfig:
         if self.smooth_speed_sigma_mps2 is not None:
             _positive(self.smooth_speed_sigma_mps2, where + "smooth_speed_sigma_mps2")
         _positive(self.wheel_speed_sigma_m, where + "wheel_speed_sigma_m")
+        _positive(self.ground_height_sigma_m, where + "ground_height_sigma_m")
+        if not np.isfinite(self.ground_z_m):
+            raise _error(where + "ground_z_m", f"must be finite, got {self.ground_z_m}")
 
 
 @dataclass(frozen=True)
@@ -148,15 +163,20 @@ class VoConfig:
     """The whole odometry configuration. ``mode``: one of :data:`MODES` (issue 5)."""
 
     mode: str = "full"
+    source: str = "auto"
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     ransac: RansacConfig = field(default_factory=RansacConfig)
     smoother: SmootherConfig = field(default_factory=SmootherConfig)
     scale: ScaleConfig = field(default_factory=ScaleConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
+    frontend: TrackerConfig = field(default_factory=TrackerConfig)   # validated on construction
+    stereo: StereoConfig = field(default_factory=StereoConfig)        # overlapping pairs (KITTI)
 
     def validate(self, where: str = "") -> None:
         if self.mode not in MODES:
             raise _error(where + "mode", f"unknown mode {self.mode!r} (expected one of {MODES})")
+        if self.source not in SOURCES:
+            raise _error(where + "source", f"unknown source {self.source!r} (expected one of {SOURCES})")
         for section in ("keyframes", "ransac", "smoother", "scale", "output"):
             getattr(self, section).validate(f"{where}{section}.")
 
@@ -238,7 +258,11 @@ def _section_from_dict(cls: type, raw: Any, where: str) -> Any:
             values[name] = _section_from_dict(annotation, value, f"{where}{name}.")
         else:
             values[name] = _convert(value, annotation, where + name)
-    return cls(**values)
+    try:
+        return cls(**values)
+    except ConfigError as error:  # sections that validate themselves on construction (frontend)
+        section = where.rstrip(".") or cls.__name__
+        raise _error(section, str(error).removeprefix(section + ": ")) from None
 
 
 def config_from_dict(raw: Any, source: str = "config") -> VoConfig:

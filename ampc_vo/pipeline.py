@@ -235,8 +235,11 @@ class OdometryPipeline:
             trailer_motion = relative_pose(previous.T_world_trailer, newest.T_world_trailer)
             self._trailer_velocity = (yaw_of(trailer_motion) / dt, float(np.linalg.norm(trailer_motion[:2, 3])) / dt)
 
-    def run(self, frames: Iterable[FrameObservations], total: int | None = None, progress: bool | None = None) -> RunSummary:
-        """Process every frame (with a tqdm progress bar if enabled) and summarise the run."""
+    def run(self, frames: Iterable[FrameObservations], total: int | None = None, progress: bool | None = None,
+            on_frame: Callable[[FrameObservations | None, list[KeyframeEstimate]], None] | None = None) -> RunSummary:
+        """Process every frame (with a tqdm progress bar if enabled) and summarise the run.
+        ``on_frame(frame, published)`` is called after every frame with the estimates it published,
+        and once more at the end with ``frame=None`` and the estimates :meth:`finish` published."""
         show = self.config.output.progress if progress is None else progress
         iterator = frames
         bar = None
@@ -248,11 +251,15 @@ class OdometryPipeline:
         started = time.perf_counter()
         try:
             for frame in iterator:
-                self.process(frame)
+                published = self.process(frame)
+                if on_frame is not None:
+                    on_frame(frame, published)
                 if bar is not None and self.estimates:
                     last = self.estimates[-1]
                     bar.set_postfix(kf=len(self.estimates), dist=f"{self._distance:.0f}m", hitch="-" if last.hitch_angle is None else f"{np.degrees(last.hitch_angle):.1f}°")
-            self.finish()
+            remaining = self.finish()
+            if on_frame is not None:
+                on_frame(None, remaining)
         finally:
             if bar is not None:
                 bar.close()

@@ -1,65 +1,95 @@
 #!/usr/bin/env python
-"""Run the odometry on a dataset folder with bearing measurements (issue 5, DESIGN sections 4, 5).
+"""Run the odometry on a dataset (issues 5 and 7, DESIGN sections 4, 5).
 
-    python scripts/run_odometry.py DATASET --out OUT [--config CONFIG] [--mode MODE]
+    python scripts/run_odometry.py [DATASET] --out OUT [--config CONFIG] [--mode MODE] [--rerun FILE.rrd]
 
-Reads DATASET/rig.yaml, frames.csv and measurements.npz; writes OUT/tractor.tum, OUT/trailer.tum,
-OUT/hitch.csv incrementally (a crash keeps what was done), OUT/timing.json and OUT/config.yaml,
-and prints a summary (frames, keyframes, distance, fps, backend time per keyframe).
+DATASET is one of: our dataset folder with images (image frontend), our dataset folder with
+measurements.npz only (simulated bearings), or a KITTI odometry folder (recognised by calib.txt and
+its left/right image folders; stereo pair as cross-camera correspondences). Without DATASET the
+built-in demo runs: the demo route is rendered into a cache folder on first use
+(``$AMPC_VO_CACHE``, default ``~/.cache/ampc_vo``) and evaluated against its ground truth at the end.
+
+Writes OUT/tractor.tum, OUT/trailer.tum, OUT/hitch.csv incrementally (a crash or Ctrl-C keeps what
+was done), OUT/timing.json and OUT/config.yaml, optionally a Rerun recording, and prints a summary
+(frames, keyframes, distance, fps, time per frame of the frontend and the backend).
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import sys
 from pathlib import Path
 
-from ampc_vo.config import MODES, load_config
-from ampc_vo.errors import AmpcError
-from ampc_vo.pipeline import run_on_frames
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
+
+from ampc_vo.config import MODES, SOURCES, load_config  # noqa: E402
+from ampc_vo.errors import AmpcError  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("dataset", type=Path, help="dataset folder (rig.yaml, frames.csv, measurements.npz)")
-    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("dataset", type=Path, nargs="?", default=None, help="dataset or KITTI folder (default: the built-in demo)")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/demo for the demo; required otherwise)")
     parser.add_argument("--config", type=Path, default=None, help="VO config YAML (default: built-in defaults = configs/vo/default.yaml)")
     parser.add_argument("--mode", choices=MODES, default=None, help="override the config's mode")
+    parser.add_argument("--source", choices=SOURCES, default=None, help="override the config's source (images or bearings)")
+    parser.add_argument("--rerun", type=Path, default=None, metavar="FILE.rrd", help="write a Rerun recording")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--wheel-speed-from-groundtruth", type=float, default=None, metavar="SIGMA_M",
-                        help="simulate wheel odometry from groundtruth.csv with this noise (m) and enable the wheel-speed factor")
+                        help="simulate wheel odometry from the ground truth with this noise (m) and enable the wheel-speed factor")
     args = parser.parse_args(argv)
     try:
         config = load_config(args.config)
         if args.mode:
             config = config.with_mode(args.mode)
+        if args.source:
+            config = dataclasses.replace(config, source=args.source)
         logging.basicConfig(level=config.output.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
-        from ampc_vo.datasets.folder import read_dataset
+        demo = args.dataset is None
+        if demo:
+            from ampc_vo.demo import demo_dataset
 
-        dataset = read_dataset(args.dataset)
-        if dataset.measurements is None:
-            raise AmpcError(f"{args.dataset}: no measurements.npz (this script runs on bearing measurements; image datasets need the frontend)")
-        frames = dataset.measurements.frames(dataset.rig)
+            dataset_path = demo_dataset(progress=not args.no_progress)
+            out = args.out or Path("out/demo")
+        else:
+            if args.out is None:
+                parser.error("--out is required with a DATASET")
+            dataset_path, out = args.dataset, args.out
+        from ampc_vo.runner import run_sequence
+        from ampc_vo.sources import open_sequence
+
+        sequence = open_sequence(dataset_path, config)
         wheel = None
         if args.wheel_speed_from_groundtruth is not None:
-            if dataset.groundtruth is None:
-                raise AmpcError(f"{args.dataset}: --wheel-speed-from-groundtruth needs groundtruth.csv")
-            import dataclasses
-
+            if sequence.truth is None:
+                raise AmpcError(f"{dataset_path}: --wheel-speed-from-groundtruth needs ground truth")
             from ampc_vo.pipeline import wheel_odometry_from_poses
 
             config = dataclasses.replace(config, scale=dataclasses.replace(config.scale, wheel_speed=True))
-            wheel = wheel_odometry_from_poses(dataset.groundtruth.timestamps, dataset.groundtruth.T_world_tractor, dataset.rig.axle_x("tractor"), args.wheel_speed_from_groundtruth)
-        summary, _ = run_on_frames(dataset.rig, config, frames, args.out, total=dataset.measurements.frame_count,
-                                   progress=False if args.no_progress else None, wheel_odometry=wheel)
+            wheel = wheel_odometry_from_poses(sequence.truth.timestamps, sequence.truth.T_world_tractor, sequence.rig.axle_x("tractor"), args.wheel_speed_from_groundtruth)
+        summary, _ = run_sequence(sequence, config, out, rerun_path=args.rerun, progress=False if args.no_progress else None, wheel_odometry=wheel)
     except AmpcError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    print(f"{args.dataset} -> {args.out}  (mode {summary.mode})")
+    except KeyboardInterrupt:
+        print(f"interrupted: the estimates written so far are in {out}", file=sys.stderr)
+        return 130
+    print(f"{dataset_path} ({sequence.kind}) -> {out}  (mode {summary.mode})")
     print(f"frames {summary.frames}  keyframes {summary.keyframes}  distance {summary.distance_m:.1f} m  "
           f"{summary.frames_per_second:.1f} frames/s  backend {summary.backend_ms_median:.1f} ms/keyframe (median)")
-    print("backend breakdown (median ms): " + ", ".join(f"{name} {value:.1f}" for name, value in summary.backend_ms_breakdown.items()))
+    print("time breakdown (median ms): " + ", ".join(f"{name} {value:.1f}" for name, value in summary.backend_ms_breakdown.items()))
     print("keyframe statuses: " + ", ".join(f"{name} {count}" for name, count in summary.statuses.items()))
+    if args.rerun is not None:
+        print(f"Rerun recording: {args.rerun}  (view: rerun {args.rerun})")
+    if demo and sequence.truth is not None:
+        from ampc_vo.evaluation import METRICS_FILE, PLOT_FILE, evaluate_output, plot_evaluation, write_metrics
+
+        evaluation = evaluate_output(out, sequence.truth)
+        write_metrics(evaluation.metrics, out / METRICS_FILE)
+        plot_evaluation(evaluation, out / PLOT_FILE, title="ampc-vo demo (rendered images)")
+        print(evaluation.metrics.table())
+        print(f"wrote {out / METRICS_FILE} and {out / PLOT_FILE}")
     return 0
 
 

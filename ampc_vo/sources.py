@@ -1,0 +1,128 @@
+"""Measurement sources: a dataset folder opened as one stream of frames for the pipeline (issue 7).
+
+One pipeline, two sources of the same measurements (DESIGN section 4): every source yields
+:class:`FrameStep`\\ s whose ``observations`` (:class:`FrameObservations`) are all the backend
+sees. Which source a folder gets:
+
+- a KITTI odometry folder (``calib.txt`` and left/right image folders, recognised by its files):
+  the image frontend on the rigid two-camera rig, with the left/right stereo pair matched every
+  frame (cross-camera correspondences keep metric scale on the nearly straight clip);
+- our dataset folder (DESIGN section 5) with images: the image frontend on every rig camera;
+- our dataset folder with ``measurements.npz`` and no images (or ``source: bearings``): the
+  simulator's bearing measurements replayed.
+
+The config key ``source`` (``auto`` | ``images`` | ``bearings``) forces a choice; a forced source
+the folder cannot provide is a :class:`DatasetError` that says what is missing.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from ampc_vo.config import VoConfig
+from ampc_vo.datasets.frame_images import load_frame_images
+from ampc_vo.errors import DatasetError
+from ampc_vo.evaluation import GroundTruth
+from ampc_vo.frontend import FrontendResult, MultiCameraFrontend
+from ampc_vo.observations import FrameObservations
+from ampc_vo.rig import Rig
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class FrameStep:
+    """One frame of a source: the observations, and for image sources the images and the
+    frontend's details (per-camera reports with rejected features, stereo matches)."""
+
+    observations: FrameObservations
+    images: dict[str, np.ndarray | None] | None = None
+    frontend: FrontendResult | None = None
+
+
+@dataclass
+class Sequence:
+    """An opened dataset: its rig, frame times, ground truth (if any) and a frame stream.
+
+    ``kind``: ``"bearings"``, ``"images"`` or ``"kitti"``. ``steps()`` starts the stream from the
+    first frame (each call starts over, with fresh trackers). ``T_body_reference``: the frame in
+    which the ground truth is compared (identity: the body; KITTI: the left camera).
+    """
+
+    path: Path
+    kind: str
+    rig: Rig
+    timestamps: np.ndarray
+    truth: GroundTruth | None
+    steps: Callable[[], Iterator[FrameStep]]
+    T_body_reference: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def __len__(self) -> int:
+        return int(self.timestamps.shape[0])
+
+
+def image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs: tuple[tuple[str, str], ...] = ()) -> Iterator[FrameStep]:
+    """The image frontend over every frame of ``dataset`` (``camera_names``, ``timestamps``,
+    ``load_image``); a missing or corrupt image is logged and that camera re-initialises."""
+    with MultiCameraFrontend(rig, config.frontend, stereo_pairs=stereo_pairs, stereo_config=config.stereo) as frontend:
+        for frame in range(len(dataset)):
+            images = load_frame_images(dataset, frame)
+            result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), images)
+            yield FrameStep(result.observations, images, result)
+
+
+def _bearing_steps(measurements: object, rig: Rig) -> Iterator[FrameStep]:
+    for observations in measurements.frames(rig):
+        yield FrameStep(observations)
+
+
+def open_sequence(path: str | Path, config: VoConfig) -> Sequence:
+    """Open a dataset folder or KITTI folder as a :class:`Sequence` (module docstring)."""
+    path = Path(path)
+    if not path.exists():
+        raise DatasetError(f"{path}: no such dataset folder")
+    if not path.is_dir():
+        raise DatasetError(f"{path}: not a folder (expected a dataset folder or a KITTI odometry folder)")
+    from ampc_vo.datasets.kitti import is_kitti_folder
+
+    if is_kitti_folder(path):
+        return _open_kitti(path, config)
+    from ampc_vo.datasets.folder import read_dataset
+
+    dataset = read_dataset(path, load_measurements_file=config.source != "images")
+    truth = _folder_truth(dataset)
+    use_images = config.source == "images" or (config.source == "auto" and dataset.has_images)
+    if use_images:
+        if not dataset.has_images:
+            raise DatasetError(f"{path}: source 'images' asked for, but frames.csv lists no images for some camera")
+        logger.info("%s: %d frames of images from cameras %s (image frontend)", path, len(dataset), ", ".join(dataset.camera_names))
+        return Sequence(path, "images", dataset.rig, dataset.timestamps, truth, lambda: image_steps(dataset, dataset.rig, config))
+    if dataset.measurements is None:
+        raise DatasetError(f"{path}: no images and no measurements.npz: nothing to run on")
+    measurements = dataset.measurements
+    logger.info("%s: %d frames of simulated bearing measurements", path, measurements.frame_count)
+    return Sequence(path, "bearings", dataset.rig, dataset.timestamps, truth, lambda: _bearing_steps(measurements, dataset.rig))
+
+
+def _folder_truth(dataset: object) -> GroundTruth | None:
+    trajectory = dataset.groundtruth
+    if trajectory is None:
+        return None
+    axle_x = dataset.rig.axle_x("trailer") if dataset.rig.has_trailer else 0.0
+    return GroundTruth(trajectory.timestamps, trajectory.T_world_tractor, trajectory.T_world_trailer, trajectory.hitch_angle, axle_x)
+
+
+def _open_kitti(path: Path, config: VoConfig) -> Sequence:
+    from ampc_vo.datasets.kitti import LEFT, RIGHT, load_kitti
+
+    if config.source == "bearings":
+        raise DatasetError(f"{path}: a KITTI folder has images only; source 'bearings' cannot be used")
+    dataset = load_kitti(path)
+    logger.info("%s: KITTI folder, %d stereo frames", path, len(dataset))
+    return Sequence(path, "kitti", dataset.rig, dataset.timestamps, dataset.truth,
+                    lambda: image_steps(dataset, dataset.rig, config, stereo_pairs=((LEFT, RIGHT),)),
+                    T_body_reference=dataset.T_body_left_camera)
