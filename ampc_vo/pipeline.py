@@ -260,10 +260,22 @@ class OdometryPipeline:
             remaining = self.finish()
             if on_frame is not None:
                 on_frame(None, remaining)
+        except BaseException as error:
+            # an error in the source (or Ctrl-C): publish what the window holds, then re-raise
+            logger.error("run stopped at frame %d (%s): writing the keyframes still in the window", self._frames, type(error).__name__)
+            self._salvage()
+            raise
         finally:
             if bar is not None:
                 bar.close()
         return self.summary(time.perf_counter() - started)
+
+    def _salvage(self) -> None:
+        """Publish the keyframes still in the smoother's window after an interrupted run."""
+        try:
+            self._after_publish(self.smoother.flush())
+        except Exception as error:  # the run is already failing: keep its error, log this one
+            logger.error("could not publish the last window: %s", error)
 
     def summary(self, seconds: float) -> RunSummary:
         timings = self.smoother.timings

@@ -93,7 +93,7 @@ def open_sequence(path: str | Path, config: VoConfig) -> Sequence:
         return _open_kitti(path, config)
     from ampc_vo.datasets.folder import read_dataset
 
-    dataset = read_dataset(path, load_measurements_file=config.source != "images")
+    dataset = read_dataset(path, load_measurements_file=config.source != "images", allow_missing_images=config.source != "bearings")
     truth = _folder_truth(dataset)
     use_images = config.source == "images" or (config.source == "auto" and dataset.has_images)
     if use_images:

@@ -227,10 +227,12 @@ def _read_groundtruth(path: Path, timestamps: np.ndarray) -> Trajectory:
     return Trajectory(values[:, 0].copy(), T_world_tractor, T_world_trailer, values[:, 15].copy())
 
 
-def read_dataset(root: str | Path, check_images: bool = False, load_measurements_file: bool = True) -> Dataset:
+def read_dataset(root: str | Path, check_images: bool = False, load_measurements_file: bool = True, allow_missing_images: bool = False) -> Dataset:
     """Open and validate a dataset folder (module docstring).
 
-    Always checks that every listed image exists; with ``check_images`` also decodes every image
+    Always checks that every listed image exists: a missing one is an error, or with
+    ``allow_missing_images`` a warning (the odometry then logs and skips that camera at that frame;
+    more than half of them missing is still an error). With ``check_images`` also decodes every image
     and checks its size against the rig (slow on long sequences). A dataset whose image columns are all empty, or whose ``images/``
     folder is absent, has no images (``has_images`` is False, e.g. bearing measurements only);
     partially empty image columns are an error.
@@ -258,7 +260,10 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
     if not np.all(empty):
         missing = [path for path in image_paths.ravel() if not (root / path).is_file()]
         if missing:
-            raise DatasetError(f"{root / missing[0]}: image file missing (listed in {frames_path}; {len(missing)} missing in total)")
+            message = f"{root / missing[0]}: image file missing (listed in {frames_path}; {len(missing)} missing in total)"
+            if not allow_missing_images or len(missing) > image_paths.size // 2:
+                raise DatasetError(message)
+            LOGGER.warning("%s: those cameras are skipped at those frames", message)
         if check_images:
             for row in image_paths:
                 for name, path in zip(camera_names, row):
