@@ -60,7 +60,10 @@ class TrackerConfig:
     block_size: int = 3              # GFTT block size (at the detection scale)
     detect_downscale: int = 2        # detect corners on an image downscaled by 1 (full size), 2 or 4 (faster)
     lk_window: int = 15              # LK window side (15: same accuracy as 21 on rendered images, 25 % faster)
-    lk_levels: int = 3               # pyramid levels above the base image
+    lk_levels: int = 4               # pyramid levels above the base image (4: side cameras move 40-120 px per frame at
+                                     # 8 m/s, 10 Hz; 3 levels lose most of them; KLT survival 77% -> 89% on the demo
+                                     # route, scripts/measure_klt_survival.py; OpenCV caps it where a level gets
+                                     # smaller than the window: 4 is the deepest for 640x480 with a 15 px window)
     fb_levels: int = 1               # pyramid levels of the backward pass (it starts at the answer)
     lk_iterations: int = 20
     lk_epsilon: float = 0.03
@@ -737,3 +740,37 @@ def match_stereo(
     index = np.flatnonzero(good)[accepted]
     observations = CameraObservations(second_camera.name, first.track_ids[index].copy(), second_pixels[index], second_bearings[accepted])
     return StereoMatches(observations, first.pixels[index].copy(), depth[accepted])
+
+
+def match_stereo_image(tracker: CameraTracker, second_image: np.ndarray | None, first: CameraObservations, second_camera: Camera,
+                       config: StereoConfig | None = None) -> StereoMatches:
+    """:func:`match_stereo` of a tracked camera's current features into the raw image of a second,
+    untracked camera of the same frame (the second camera of a stereo pair is not tracked on its
+    own: its observations are the matches). A missing, blank or unusable second image gives no
+    matches (logged); an image of the wrong size raises :class:`DatasetError`."""
+    if second_image is None or tracker.previous_image is None or len(first) == 0:
+        return StereoMatches.empty(second_camera.name)
+    gray = as_gray_image(second_image, second_camera, where=f"camera {second_camera.name}")
+    if is_blank(gray, tracker.config.min_contrast):
+        logger.warning("camera %s: blank image, no stereo matches this frame", second_camera.name)
+        return StereoMatches.empty(second_camera.name)
+    return match_stereo(tracker.previous_image, gray, first, tracker.camera, second_camera, config)
+
+
+def observations_with_stereo(observations: FrameObservations, stereo: dict[tuple[str, str], StereoMatches]) -> FrameObservations:
+    """The frame's observations with cross-camera association (``landmark_ids``) from stereo matches.
+
+    Each first camera of a pair gets ``landmark_ids`` = its track ids; each second camera's
+    observations are the matches (:class:`StereoMatches`: the first camera's track ids) with the
+    same ``landmark_ids``. So the second camera's "tracks" across frames are the first camera's
+    tracks (intra-camera GEC of the second camera), and equal ids in the two cameras at any two
+    frames are the same point (cross-camera GEC, two-camera form: metric scale).
+    """
+    cameras = dict(observations.cameras)
+    for (first, second), matches in stereo.items():
+        if first in cameras:
+            own = cameras[first]
+            cameras[first] = CameraObservations(own.camera, own.track_ids, own.pixels, own.bearings, own.track_ids.copy())
+        matched = matches.observations
+        cameras[second] = CameraObservations(second, matched.track_ids, matched.pixels, matched.bearings, matched.track_ids.copy())
+    return FrameObservations(observations.frame, observations.timestamp, cameras)

@@ -603,6 +603,16 @@ class Renderer:
     # ------------------------------------------------------------------ shading
     def render_float(self, camera: Camera, T_world_camera: np.ndarray, extra_quads: Sequence[Quad] = ()) -> np.ndarray:
         """Noise-free image as float32 grey levels (H, W)."""
+        return self._render_float_and_depth(camera, T_world_camera, extra_quads)[0]
+
+    def render_with_depth(self, camera: Camera, T_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(uint8 image (H, W), ray distance (H, W) float32, inf where the sky is seen)`` from one
+        depth pass (ground truth for tracking checks, ``ampc_vo.klt_survival``)."""
+        image, depth = self._render_float_and_depth(camera, T_world_camera, ())
+        return to_uint8(image), depth
+
+    def _render_float_and_depth(self, camera: Camera, T_world_camera: np.ndarray,
+                                extra_quads: Sequence[Quad]) -> tuple[np.ndarray, np.ndarray]:
         extra = prepare_quads(extra_quads, self.atlas, self.options, seed_offset=10**6) if extra_quads else None
         visible = self.depth_pass(camera, T_world_camera, extra)
         quads = visible.quads
@@ -662,7 +672,7 @@ class Renderer:
             elevation = np.clip(rays.rays_planes[0][sky] * up[0] + rays.rays_planes[1][sky] * up[1] + rays.rays_planes[2][sky] * up[2], 0.0, 1.0)
             image[sky] = options.sky_horizon + (options.sky_zenith - options.sky_horizon) * np.sqrt(elevation)
         image[~rays.valid] = 0.0
-        return image
+        return image, visible.depth
 
     def render(self, camera: Camera, T_world_camera: np.ndarray, extra_quads: Sequence[Quad] = ()) -> np.ndarray:
         """uint8 grey image (H, W) of the scene seen by ``camera`` at ``T_world_camera``."""

@@ -172,13 +172,18 @@ def test_textures_are_tileable_deterministic_and_varied():
     assert levels[-1].mean() == pytest.approx(brick.mean(), abs=1e-3)
 
 
-def test_klt_tracks_rendered_default_route(repo_root):
-    """OpenCV KLT (21x21, 3 levels) with a forward-backward check keeps >= 80% of GFTT features within
-    0.5 px between consecutive rendered frames of the default route (demo config, 10 Hz, 8 m/s),
-    pooled over all cameras on the straight (>= 65% in the turn). Features whose true next position (from
-    the depth buffer and the ground-truth poses) leaves the image are not counted: they cannot be
-    tracked by any method. The tracked positions also agree with that truth."""
+def test_klt_tracks_rendered_default_route_in_the_turn(repo_root):
+    """OpenCV KLT with the frontend's default LK settings (``TrackerConfig``: 15 px window, 4 pyramid
+    levels) keeps >= 80% of GFTT features with a forward-backward error <= 0.5 px between consecutive
+    rendered frames of the default route (demo config, 10 Hz, 8 m/s), pooled over the 4 cameras, in
+    the 25 m-radius turn (3 consecutive pairs) and on the straight. Features whose true next position
+    (depth buffer + ground-truth poses) leaves the image or is occluded are not counted
+    (``ampc_vo.klt_survival``). With the old 3 pyramid levels the turn pairs reach only ~72%: the side
+    cameras' ground moves 40-120 px per frame, beyond a 3-level pyramid's reach. The surviving tracks
+    also land where the geometry says."""
+    from ampc_vo.frontend import TrackerConfig
     from ampc_vo.kinematics import simulate_kinematics
+    from ampc_vo.klt_survival import measure_route, segment_of_pairs, summarise
     from ampc_vo.scene import build_scene
     from ampc_vo.sim_config import load_sim_config
 
@@ -188,41 +193,20 @@ def test_klt_tracks_rendered_default_route(repo_root):
                                      config.initial_hitch_angle, config.duration)
     scene = build_scene(trajectory, np.random.default_rng(config.seed), config.scene)
     renderer = Renderer(scene, None, RenderOptions())
-    lk = {"winSize": (21, 21), "maxLevel": 3, "criteria": (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.01)}
-    kept, counted, per_camera, tracking_errors = {}, {}, {}, []
-    for frame in (30, 90):  # a straight and the turn
-        for camera in rig.cameras:
-            T_first, T_second = (trajectory.pose(camera.body)[k] @ camera.T_body_camera for k in (frame, frame + 1))
-            images = [renderer.render(camera, T) for T in (T_first, T_second)]
-            corners = cv2.goodFeaturesToTrack(images[0], 300, 0.01, 8)
-            assert corners is not None and len(corners) >= 100, f"{camera.name}: too few features"
-            forward, status_f, _ = cv2.calcOpticalFlowPyrLK(images[0], images[1], corners, None, **lk)
-            backward, status_b, _ = cv2.calcOpticalFlowPyrLK(images[1], images[0], forward, None, **lk)
-            start = corners.reshape(-1, 2)
-            fb_error = np.linalg.norm(backward.reshape(-1, 2) - start, axis=1)
-            good = (status_f.ravel() == 1) & (status_b.ravel() == 1) & (fb_error <= 0.5)
-            # Ground truth next position of each feature: its 3D point from the depth buffer.
-            depth = renderer.depth_pass(camera, T_first).depth
-            pixel = np.round(start).astype(int)
-            distance = depth[pixel[:, 1], pixel[:, 0]]
-            finite = np.isfinite(distance)
-            point_world = (camera.unproject(start[finite]) * distance[finite, None]) @ T_first[:3, :3].T + T_first[:3, 3]
-            truth = np.full_like(start, -1e6)
-            truth[finite], _ = camera.project((point_world - T_second[:3, 3]) @ T_second[:3, :3])
-            margin = 10
-            stays = (truth[:, 0] >= margin) & (truth[:, 0] < camera.width - margin) & (truth[:, 1] >= margin) & (truth[:, 1] < camera.height - margin)
-            kept[frame] = kept.get(frame, 0) + int((good & stays).sum())
-            counted[frame] = counted.get(frame, 0) + int(stays.sum())
-            per_camera[(frame, camera.name)] = round(float((good & stays).sum() / max(stays.sum(), 1)), 2)
-            tracking_errors.append(np.linalg.norm(forward.reshape(-1, 2) - truth, axis=1)[good & stays])
-    pooled = {frame: kept[frame] / counted[frame] for frame in kept}
-    print("KLT forward-backward <= 0.5 px, pooled per frame:", pooled, "per camera:", per_camera)
-    # Straight driving meets the issue's 80%. In the 25 m-radius turn at 10 Hz, near-ground features
-    # move 50-130 px per frame with strong perspective change and KLT loses more (weakness, see report).
-    assert pooled[30] >= 0.8, per_camera
-    assert pooled[90] >= 0.65, per_camera
-    assert min(per_camera.values()) >= 0.45, per_camera
-    assert np.median(np.concatenate(tracking_errors)) < 0.75  # tracked features go where the geometry says
+    turn_frames, straight_frames = [80, 81, 82], [30]
+    assert set(segment_of_pairs(trajectory, "tractor", turn_frames)) == {"turn"}
+    assert set(segment_of_pairs(trajectory, "trailer", turn_frames)) == {"turn"}
+    results = {name: measure_route(renderer, rig, trajectory, frames, TrackerConfig())
+               for name, frames in (("turn", turn_frames), ("straight", straight_frames))}
+    for name, pairs in results.items():
+        table = summarise(pairs)
+        survival = {camera: round(kept / counted, 3) for camera, (kept, counted) in ((c, table[c]["all"]) for c in table)}
+        print(f"KLT forward-backward <= 0.5 px, {name}: {survival}")
+        assert survival["all"] >= 0.8, survival
+        assert min(survival.values()) >= 0.7, survival
+        assert all(pair.counted >= 100 for pair in pairs), [(pair.camera, pair.counted) for pair in pairs]
+    errors = np.concatenate([pair.tracking_error_px[pair.survives] for pairs in results.values() for pair in pairs])
+    assert np.median(errors) < 0.5  # tracked features go where the geometry says
 
 
 def test_realism_switches_noise_exposure_blur_and_moving_vehicle(default_rig, atlas, tmp_path):
