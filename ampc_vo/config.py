@@ -37,9 +37,14 @@ class KeyframeConfig:
     max_interval_s: float = 1.0
     min_tracks: int = 10
     standstill_distance_m: float = 0.05
+    # frames whose constant-velocity prediction is below this fraction of both thresholds are not
+    # keyframe candidates: the per-frame tractor RANSAC is skipped for them (speed); 0 disables
+    prediction_gate: float = 0.6
 
     def validate(self, where: str) -> None:
         _positive(self.min_distance_m, where + "min_distance_m")
+        if not 0.0 <= self.prediction_gate < 1.0:
+            raise _error(where + "prediction_gate", f"must be in [0, 1), got {self.prediction_gate}")
         _positive(self.min_rotation_deg, where + "min_rotation_deg")
         _positive(self.max_interval_s, where + "max_interval_s")
         _at_least(self.min_tracks, 2, where + "min_tracks")
@@ -56,6 +61,9 @@ class RansacConfig:
     max_iterations: int = 200
     min_inliers: int = 8
     seed: int = 0
+    # median parallax (pixels, divided by the focal length) below which a frame pair is a standstill;
+    # null: the solvers' default (0.003 rad). Forward motion with mostly far points (KITTI) needs less
+    standstill_parallax_px: float | None = None
 
     def validate(self, where: str) -> None:
         _positive(self.threshold_px, where + "threshold_px")
@@ -63,6 +71,8 @@ class RansacConfig:
             raise _error(where + "confidence", f"must be in (0, 1), got {self.confidence}")
         _at_least(self.max_iterations, 1, where + "max_iterations")
         _at_least(self.min_inliers, 2, where + "min_inliers")
+        if self.standstill_parallax_px is not None:
+            _positive(self.standstill_parallax_px, where + "standstill_parallax_px")
 
 
 @dataclass(frozen=True)
@@ -86,12 +96,12 @@ class SmootherConfig:
     standstill_translation_sigma_m: float = 0.002
     weak_motion_rotation_sigma_deg: float = 5.0
     weak_motion_translation_sigma_m: float = 1.0
-    max_pair_gap: int = 3
+    max_pair_gap: int = 1
     gate_px: float = 3.0
     max_window_tracks_per_camera: int = 150
-    lm_max_iterations: int = 20
+    lm_max_iterations: int = 10
     lm_lambda_initial: float = 1e-3
-    lm_relative_error_tol: float = 1e-5
+    lm_relative_error_tol: float = 1e-4
     marginals: bool = True
 
     def validate(self, where: str) -> None:
@@ -116,16 +126,32 @@ class ScaleConfig:
     (``null`` disables it) and the optional wheel-speed factor (off by default).
 
     ``ground_plane``: measure the tractor axle chord from road points seen by the tractor cameras
-    and their known height above the road (``ampc_vo.ground_scale``); ``ground_z_m``: z of the road
-    surface in the body frame (body origin at the hitch); ``ground_height_sigma_m``: uncertainty of
-    the cameras' height above the road (suspension, camber)."""
+    and their known height above the road (``ampc_vo.ground_scale``; needs the cameras' pitch
+    relative to the road calibrated in the rig); ``ground_z_m``: z of the road surface in the body
+    frame (body origin at the hitch; the simulator's road is at the origin's height, 0;
+    a real truck: minus the hitch height); ``ground_height_sigma_m``: uncertainty of
+    the cameras' height above the road (suspension, camber); ``ground_normal_sigma_deg``: of their
+    pitch and roll relative to the road (calibration, load, braking). ``cross_camera``: epipolar
+    correspondences between two cameras of one body at different keyframes, associated by
+    ``CameraObservations.landmark_ids`` (two-camera GEC: metric scale observable in straight driving),
+    up to ``cross_camera_max_gap`` keyframes apart (``max_pair_gap`` in the single-body modes), gated at ``cross_camera_gate_px`` under the
+    initial poses (looser than ``smoother.gate_px``: the initial chord may be off in scale)."""
 
     smooth_speed_sigma_mps2: float | None = 1.0
     wheel_speed: bool = False
     wheel_speed_sigma_m: float = 0.05
-    ground_plane: bool = False
+    ground_plane: bool = True
     ground_z_m: float = 0.0
     ground_height_sigma_m: float = 0.02
+    ground_normal_sigma_deg: float = 0.0
+    cross_camera: bool = True
+    cross_camera_max_gap: int = 6
+    cross_camera_gate_px: float = 10.0
+    # chord of the tractor axle from points triangulated by two cameras of the tractor in the same
+    # frame (equal landmark_ids; KITTI's stereo pair): initial chord and a robust chord factor
+    # (ampc_vo.stereo_scale); points up to stereo_max_depth_m are used
+    stereo_chord: bool = False
+    stereo_max_depth_m: float = 40.0
     bootstrap_pairs: int = 3
     bootstrap_interval_s: float = 0.5
     bootstrap_max_s: float = 30.0
@@ -138,7 +164,11 @@ class ScaleConfig:
             _positive(self.smooth_speed_sigma_mps2, where + "smooth_speed_sigma_mps2")
         _positive(self.wheel_speed_sigma_m, where + "wheel_speed_sigma_m")
         _positive(self.ground_height_sigma_m, where + "ground_height_sigma_m")
-        if not np.isfinite(self.ground_z_m):
+        _at_least(self.ground_normal_sigma_deg, 0.0, where + "ground_normal_sigma_deg")
+        _at_least(self.cross_camera_max_gap, 1, where + "cross_camera_max_gap")
+        _positive(self.cross_camera_gate_px, where + "cross_camera_gate_px")
+        _positive(self.stereo_max_depth_m, where + "stereo_max_depth_m")
+        if not abs(self.ground_z_m) < float("inf"):  # finite (NaN fails too)
             raise _error(where + "ground_z_m", f"must be finite, got {self.ground_z_m}")
 
 
@@ -164,6 +194,7 @@ class VoConfig:
 
     mode: str = "full"
     source: str = "auto"
+    threads: int = 2   # image sources: cameras tracked and the next frame decoded in parallel (OpenCV releases the GIL)
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     ransac: RansacConfig = field(default_factory=RansacConfig)
     smoother: SmootherConfig = field(default_factory=SmootherConfig)
@@ -175,6 +206,7 @@ class VoConfig:
     def validate(self, where: str = "") -> None:
         if self.mode not in MODES:
             raise _error(where + "mode", f"unknown mode {self.mode!r} (expected one of {MODES})")
+        _at_least(self.threads, 1, where + "threads")
         if self.source not in SOURCES:
             raise _error(where + "source", f"unknown source {self.source!r} (expected one of {SOURCES})")
         for section in ("keyframes", "ransac", "smoother", "scale", "output"):

@@ -21,6 +21,8 @@ logger = logging.getLogger(__name__)
 CACHE_ENVIRONMENT = "AMPC_VO_CACHE"
 COMPLETE_MARKER = ".complete"
 DEMO_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "sim" / "demo.yaml"
+# bump when the scene or the renderer change what a rendered sequence looks like (stale caches re-render)
+SCENE_VERSION = "2"
 
 
 def cache_root() -> Path:
@@ -30,11 +32,12 @@ def cache_root() -> Path:
 
 
 def _fingerprint(config_path: Path) -> str:
-    """Hash of the simulation config and its rig file (what the rendered sequence depends on)."""
+    """Hash of the scene version, the simulation config and its rig file (what the rendered sequence depends on)."""
     from ampc_vo.sim_config import load_sim_config
 
     config = load_sim_config(config_path)
-    digest = hashlib.sha256(config_path.read_bytes())
+    digest = hashlib.sha256(SCENE_VERSION.encode())
+    digest.update(config_path.read_bytes())
     digest.update(Path(config.rig_path).read_bytes())
     return digest.hexdigest()[:12]
 

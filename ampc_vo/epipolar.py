@@ -173,3 +173,79 @@ def gec_sampson_jacobian(
     chain[3:, :3] = rotation @ _skew(-center_j)
     chain[3:, 3:] = rotation
     return sampson, gradients @ chain
+
+
+_NEXT = np.array([1, 2, 0])
+_AFTER_NEXT = np.array([2, 0, 1])
+
+
+def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (N, 3) arrays (faster than ``np.cross`` for N ~ 1000)."""
+    return a[:, _NEXT] * b[:, _AFTER_NEXT] - a[:, _AFTER_NEXT] * b[:, _NEXT]
+
+
+def gec_sampson_pairs_jacobian(
+    bearings_i: np.ndarray,
+    bearings_j: np.ndarray,
+    rotations: np.ndarray,
+    translations: np.ndarray,
+    centers_i: np.ndarray,
+    centers_j: np.ndarray,
+    pair_starts: np.ndarray,
+    jacobian: bool = True,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The Sampson GEC of :func:`gec_sampson` / :func:`gec_sampson_jacobian` for rows of several
+    motions and cameras at once: rows are sorted by motion (keyframe pair); motion p is
+    ``rotations[p]`` (P, 3, 3), ``translations[p]`` (P, 3) and owns rows ``pair_starts[p]`` up to
+    the next start; every row has its own camera centres ``centers_i``, ``centers_j`` (N, 3)
+    (Plücker form when they differ). One vectorised call for many cameras, camera pairs and
+    keyframe pairs (``factors.epipolar.StackedEpipolarFactor``).
+
+    Same formulas as :func:`gec_sampson_jacobian` (see its derivation) with the baseline
+    ``d_n = R c_j,n + t - c_i,n`` per row; returns the residuals (N,) and, with ``jacobian``,
+    the (N, 6) Jacobian of each row w.r.t. the right perturbation ``[omega, v]`` of its motion.
+    """
+    bounds = [int(start) for start in pair_starts] + [bearings_i.shape[0]]
+    rotated_j = np.empty_like(bearings_j)  # g = R f'
+    rotated_center = np.empty_like(centers_j)  # R c_j
+    offsets = np.empty_like(centers_j)
+    for rotation, translation, start, stop in zip(rotations, translations, bounds[:-1], bounds[1:]):
+        rotated_j[start:stop] = bearings_j[start:stop] @ rotation.T
+        rotated_center[start:stop] = centers_j[start:stop] @ rotation.T
+        offsets[start:stop] = translation
+    baseline = rotated_center + offsets - centers_i
+    grad_f = _cross3(rotated_j, baseline)  # g x d
+    grad_g = _cross3(baseline, bearings_i)  # d x f
+    residual = _rowdot(bearings_i, grad_f)
+    g_dot_grad_g = _rowdot(grad_g, rotated_j)
+    tangent_f = grad_f - residual[:, None] * bearings_i
+    tangent_g = grad_g - g_dot_grad_g[:, None] * rotated_j
+    norm = np.sqrt(_rowdot(tangent_f, tangent_f) + _rowdot(tangent_g, tangent_g))
+    clamped = np.maximum(norm, _MIN_SAMPSON_NORM)
+    sampson = residual / clamped
+    if not jacobian:
+        return sampson, None
+    inv_norm = (norm >= _MIN_SAMPSON_NORM) / clamped
+    s_over_n = sampson * inv_norm
+    s_over_n2 = s_over_n * inv_norm
+    alpha = (1.0 + 2.0 * s_over_n * residual) * inv_norm
+    g_dot_d = _rowdot(rotated_j, baseline)
+    f_dot_d = _rowdot(bearings_i, baseline)
+    g_dot_f = _rowdot(rotated_j, bearings_i)
+    s_g_dot_d = (s_over_n2 * g_dot_d)[:, None]
+    gradients = np.empty((residual.shape[0], 2, 3))
+    gradients[:, 0] = (alpha * g_dot_f)[:, None] * baseline - (alpha * g_dot_d)[:, None] * bearings_i + s_g_dot_d * grad_f  # g x ds/dg
+    gradients[:, 1] = (  # ds/dd
+        alpha[:, None] * _cross3(bearings_i, rotated_j)
+        + s_g_dot_d * rotated_j
+        + (s_over_n2 * f_dot_d)[:, None] * bearings_i
+        - (2.0 * s_over_n2)[:, None] * baseline
+    )
+    # chain per motion (row vectors): J_omega = a R - b R [c_j]x = a R + c_j x (b R), J_v = b R
+    local = np.empty_like(gradients)
+    for rotation, start, stop in zip(rotations, bounds[:-1], bounds[1:]):
+        local[start:stop] = gradients[start:stop] @ rotation
+    result = np.empty((residual.shape[0], 6))
+    result[:, :3] = local[:, 0] + _cross3(centers_j, local[:, 1])
+    result[:, 3:] = local[:, 1]
+    return sampson, result

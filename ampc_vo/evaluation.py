@@ -52,6 +52,10 @@ class GroundTruth:
     T_world_trailer: np.ndarray | None = None
     hitch_angles: np.ndarray | None = None
     trailer_axle_x: float = 0.0  # trailer ATE is measured at this point of the trailer x axis
+    # the frame in which tractor poses are compared, in the tractor frame (None: the body itself;
+    # KITTI: the left camera, the frame of its ground truth): truth and estimate are both taken as
+    # T_world_tractor @ T_tractor_reference
+    T_tractor_reference: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -187,8 +191,9 @@ def evaluate(
     """Compute :class:`Metrics` of an estimate against ground truth (see module docstring)."""
     if len(tractor) < 2:
         raise AmpcError(f"need at least 2 tractor poses to evaluate, got {len(tractor)}")
-    truth_tractor = _evo_trajectory(truth.timestamps, truth.T_world_tractor)
-    ref, est = _associate(truth_tractor, _evo_trajectory(tractor.timestamps, tractor.poses), max_time_diff)
+    reference = np.eye(4) if truth.T_tractor_reference is None else np.asarray(truth.T_tractor_reference, dtype=float)
+    truth_tractor = _evo_trajectory(truth.timestamps, truth.T_world_tractor @ reference)
+    ref, est = _associate(truth_tractor, _evo_trajectory(tractor.timestamps, tractor.poses @ reference), max_time_diff)
     if ref.num_poses < 2:
         raise AmpcError(f"only {ref.num_poses} estimated poses match ground-truth timestamps (max_diff {max_time_diff} s)")
     est_se3, rotation, translation, _ = _aligned(est, ref, correct_scale=False)
@@ -316,8 +321,14 @@ def plot_evaluation(evaluation: Evaluation, path: str | Path, title: str = "") -
 
 # ---------------------------------------------------------------------- ground truth
 def load_groundtruth(dataset_dir: str | Path) -> GroundTruth:
-    """Ground truth of a dataset folder (DESIGN section 5), read by :func:`ampc_vo.datasets.folder.read_dataset`."""
+    """Ground truth of a dataset folder (DESIGN section 5), read by :func:`ampc_vo.datasets.folder.read_dataset`,
+    or of a KITTI odometry folder (recognised by its files; :func:`ampc_vo.datasets.kitti.load_kitti_truth`:
+    the body poses, compared in KITTI's left-camera frame through ``T_tractor_reference``)."""
     from ampc_vo.datasets.folder import read_dataset
+    from ampc_vo.datasets.kitti import is_kitti_folder, load_kitti_truth
+
+    if is_kitti_folder(dataset_dir):
+        return load_kitti_truth(dataset_dir)
 
     dataset = read_dataset(dataset_dir, load_measurements_file=False)
     truth = dataset.groundtruth

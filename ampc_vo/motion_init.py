@@ -5,7 +5,11 @@ Per keyframe pair (DESIGN section 4): tractor RANSAC with the 2-point Ackermann 
 (DESIGN 2.2) given the tractor motion. In mode ``separate`` the trailer's own motion comes from
 the same 2-point solver applied to the trailer cameras and the trailer axle (a trailer is a rigid
 body with one rigid axle as well). Solver statuses are mapped to :class:`MotionStatus`; when a
-motion cannot be estimated the caller's constant-velocity prediction is used.
+motion cannot be estimated the caller's constant-velocity prediction is used. With
+``scale.stereo_chord`` (a rig with an overlapping camera pair, KITTI) the tractor's yaw change and
+metric chord come from stereo points first (:func:`ampc_vo.stereo_scale.stereo_motion`, seeded
+by the prediction; the 2-point RANSAC only when that fails), and the chord becomes the keyframe's
+``scale_chord``.
 """
 from __future__ import annotations
 
@@ -16,14 +20,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from ampc_vo.config import VoConfig
+from ampc_vo.epipolar import gec_sampson
 from ampc_vo.geometry import make_pose
+from ampc_vo.ground_scale import GroundScaleOptions, ground_plane_chord
 from ampc_vo.observations import FrameObservations, match_tracks
 from ampc_vo.rig import Camera, Rig
 from ampc_vo.smoother import MotionInit, MotionStatus
+from ampc_vo.stereo_scale import StereoMotion, StereoScaleOptions, stereo_motion
 from ampc_vo.solvers import RansacConfig as SolverRansacConfig
 from ampc_vo.solvers import SolverStatus, TractorMotionEstimate, ackermann_motion, estimate_hitch_angles, estimate_tractor_motion, refine_joint
 
 logger = logging.getLogger(__name__)
+
+# yaw-change uncertainty given to the ground-plane chord: floor of the RANSAC's sigma, and the value
+# used when it has none (radians)
+_MIN_YAW_SIGMA = float(np.radians(0.01))
+_DEFAULT_YAW_SIGMA = float(np.radians(0.1))
 
 
 @dataclass(frozen=True)
@@ -65,7 +77,9 @@ def camera_pairs(rig: Rig, body: str, first: FrameObservations, second: FrameObs
 def _solver_config(config: VoConfig, cameras: list[Camera]) -> SolverRansacConfig:
     """The solvers' RANSAC options from the VO config: the pixel threshold over the mean focal."""
     focal = float(np.mean([0.5 * (camera.fx + camera.fy) for camera in cameras])) if cameras else 500.0
+    standstill = {} if config.ransac.standstill_parallax_px is None else {"standstill_parallax": config.ransac.standstill_parallax_px / focal}
     return SolverRansacConfig(
+        **standstill,
         sampson_threshold=config.ransac.threshold_px / focal,
         confidence=config.ransac.confidence,
         max_iterations=config.ransac.max_iterations,
@@ -113,6 +127,7 @@ class TractorMotion:
     status: MotionStatus
     estimate: TractorMotionEstimate
     shared_tracks: int
+    scale_chord: tuple[float, float] | None = None  # measured axle chord (stereo_scale): (chord m, sigma m)
 
     @property
     def chord(self) -> float:
@@ -133,6 +148,10 @@ class MotionInitializer:
         self._trailer_config = _solver_config(config, rig.cameras_on("trailer")) if rig.has_trailer else None
         self._rng = np.random.default_rng(config.ransac.seed)
         self.use_trailer = rig.has_trailer and config.mode != "tractor_only"
+        self._ground_options = GroundScaleOptions(
+            ground_z=config.scale.ground_z_m, pixel_sigma=config.smoother.pixel_sigma, height_sigma_m=config.scale.ground_height_sigma_m,
+            normal_sigma=float(np.radians(config.scale.ground_normal_sigma_deg)))
+        self._stereo_options = StereoScaleOptions(pixel_sigma=config.smoother.pixel_sigma, max_depth_m=config.scale.stereo_max_depth_m)
 
     def tractor(self, first: FrameObservations, second: FrameObservations, predicted: np.ndarray, prediction_sigma: float | None = None) -> TractorMotion:
         """Tractor motion ``T_first_second``; ``predicted`` (constant velocity) fills what is unknown:
@@ -142,10 +161,20 @@ class MotionInitializer:
         pairs = camera_pairs(self.rig, "tractor", first, second)
         shared = sum(len(pair) for pair in pairs)
         predicted_chord = float(np.linalg.norm(predicted[:2, 3]))
+        if shared >= self.config.keyframes.min_tracks:
+            # an overlapping camera pair (scale.stereo_chord) gives metric yaw and chord directly from
+            # the constant-velocity guess; the 2-point RANSAC (about 2/3 of the per-frame time) is skipped
+            stereo = self._stereo_motion(first, second, predicted)
+            if stereo is not None:
+                return TractorMotion(stereo.T_i_j, MotionStatus.OK, self._stereo_estimate(pairs, stereo), shared, stereo.as_scale_chord())
         estimate = estimate_tractor_motion(pairs, self.rig.axle_x("tractor"), self._tractor_config, chord_prior=max(predicted_chord, 1e-3), rng=self._rng)
         status = _status(estimate.status)
         if shared < self.config.keyframes.min_tracks:
             status = MotionStatus.TOO_FEW_TRACKS
+        if status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and estimate.T_i_j is not None:
+            stereo = self._stereo_motion(first, second, estimate.T_i_j)   # second chance, from the RANSAC motion
+            if stereo is not None:
+                return TractorMotion(stereo.T_i_j, MotionStatus.OK, estimate, shared, stereo.as_scale_chord())
         if status is MotionStatus.STANDSTILL:
             T_i_j = np.eye(4)
         elif status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and estimate.T_i_j is not None:
@@ -156,6 +185,35 @@ class MotionInitializer:
             status = MotionStatus.TOO_FEW_TRACKS
             T_i_j = predicted
         return TractorMotion(T_i_j, status, estimate, shared)
+
+    def _stereo_motion(self, first: FrameObservations, second: FrameObservations, T_guess: np.ndarray) -> StereoMotion | None:
+        """Tractor yaw change and axle chord from stereo points (:func:`ampc_vo.stereo_scale.stereo_motion`)
+        when ``scale.stereo_chord`` is on, the measurement succeeds and the tractor moved (the 2-point
+        solver's standstill or unobservable scale in straight driving are overruled), else ``None``."""
+        if not self.config.scale.stereo_chord:
+            return None
+        measured = stereo_motion(self.rig, "tractor", first, second, T_guess, self.rig.axle_x("tractor"), self._stereo_options)
+        if not measured.ok:
+            logger.debug("frames %d-%d: no stereo motion (%s)", first.frame, second.frame, measured.status.value)
+            return None
+        if abs(measured.chord) < self.config.keyframes.standstill_distance_m:
+            return None
+        return measured
+
+    def _stereo_estimate(self, pairs: list[CameraPairs], stereo: StereoMotion) -> TractorMotionEstimate:
+        """The 2-point RANSAC's result type for a stereo motion: per-camera inliers are the shared
+        tracks whose Sampson GEC residual under it is below the RANSAC threshold (DESIGN 2.1)."""
+        rotation, translation = stereo.T_i_j[:3, :3], stereo.T_i_j[:3, 3]
+        threshold = self._tractor_config.sampson_threshold
+        masks = [np.abs(gec_sampson(pair.body_bearings_i, pair.body_bearings_j, rotation, translation, pair.camera.center)) < threshold for pair in pairs]
+        count = int(sum(int(np.count_nonzero(mask)) for mask in masks))
+        return TractorMotionEstimate(SolverStatus.OK, stereo.yaw_change, stereo.chord, stereo.T_i_j, masks, count, chord_sigma=stereo.chord_sigma)
+
+    def _with_chord(self, T_i_j: np.ndarray, chord: float) -> np.ndarray:
+        """The Ackermann motion (DESIGN 2 (NH)) of ``T_i_j``'s yaw change and direction with the axle chord ``chord``."""
+        yaw_change = float(np.arctan2(T_i_j[1, 0], T_i_j[0, 0]))
+        direction = 1.0 if _chord_of(T_i_j, self.rig.axle_x("tractor")) >= 0.0 else -1.0
+        return make_pose(*ackermann_motion(yaw_change, direction * chord, self.rig.axle_x("tractor")))
 
     def _fuse_chord(self, estimate: TractorMotionEstimate, predicted_chord: float, prediction_sigma: float) -> np.ndarray:
         """Inverse-variance fusion of the RANSAC chord with the constant-velocity prediction; the yaw
@@ -174,7 +232,8 @@ class MotionInitializer:
         if tractor.status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE, MotionStatus.STANDSTILL):
             inliers = _inlier_tracks(camera_pairs(self.rig, "tractor", first, second), tractor.estimate.inlier_masks)
         if not self.use_trailer:
-            return MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=inliers)
+            return self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=inliers, scale_chord=tractor.scale_chord), first, second,
+                                           tractor.estimate.yaw_sigma)
         hitch_prev = hitch = None
         trailer_status = MotionStatus.TOO_FEW_TRACKS
         trailer_pairs = camera_pairs(self.rig, "trailer", first, second)
@@ -198,7 +257,7 @@ class MotionInitializer:
                 )
                 if joint.ok and np.all(np.isfinite(joint.T_i_j)):
                     status = MotionStatus.OK if tractor.status is MotionStatus.SCALE_UNOBSERVABLE else tractor.status
-                    tractor = TractorMotion(joint.T_i_j, status, tractor.estimate, tractor.shared_tracks)
+                    tractor = TractorMotion(joint.T_i_j, status, tractor.estimate, tractor.shared_tracks, tractor.scale_chord)
                     estimate = estimate_hitch_angles(
                         trailer_pairs, (tractor.yaw_change, tractor.T_i_j[:3, 3]), trailer_axle_x, self._trailer_config,
                         prior_hitch_angle=hitch_prior, rng=self._rng,
@@ -223,5 +282,49 @@ class MotionInitializer:
                 else:
                     trailer_status = MotionStatus.TOO_FEW_TRACKS if trailer_status is not MotionStatus.STANDSTILL else trailer_status
                     T_trailer = predicted
-        return MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer, inlier_tracks=inliers)
+        return self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer, inlier_tracks=inliers,
+                                                  scale_chord=tractor.scale_chord), first, second, tractor.estimate.yaw_sigma)
+
+    def measured_chord(self, first: FrameObservations, second: FrameObservations, tractor: TractorMotion) -> tuple[float, float] | None:
+        """The metric tractor axle chord ``(chord m, sigma m)`` of a motion measured by the ground
+        plane (and the stereo pair, if any), ``None`` when neither measures it: what the scale
+        bootstrap uses on a straight start (DESIGN 2.3), where the 2-point chord is unobservable."""
+        if tractor.status not in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE):
+            return None
+        inliers = _inlier_tracks(camera_pairs(self.rig, "tractor", first, second), tractor.estimate.inlier_masks)
+        init = MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=inliers, scale_chord=tractor.scale_chord)
+        return self._with_ground_scale(init, first, second, tractor.estimate.yaw_sigma).scale_chord
+
+    def _with_ground_scale(self, init: MotionInit, first: FrameObservations, second: FrameObservations, yaw_sigma: float) -> MotionInit:
+        """``init`` with ``scale_chord`` from the ground plane (``scale.ground_plane``): the metric
+        chord of the tractor axle measured from road points of the tractor cameras
+        (:mod:`ampc_vo.ground_scale`), given the final tractor motion's rotation and direction and
+        the RANSAC's ``yaw_sigma`` (radians; a side camera's chord is sensitive to yaw errors).
+        An existing ``scale_chord`` (stereo) is fused with it (inverse variance); a scale-unobservable
+        motion is re-initialised with the measured chord."""
+        if not self.config.scale.ground_plane or init.tractor_status not in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE):
+            return init
+        correspondences = []
+        for pair in camera_pairs(self.rig, "tractor", first, second):
+            inlier_ids = init.inlier_tracks.get(pair.camera.name)
+            keep = np.isin(pair.track_ids, inlier_ids) if inlier_ids is not None else np.ones(len(pair), bool)
+            correspondences.append((pair.camera, pair.bearings_i[keep], pair.bearings_j[keep]))
+        yaw_sigma = max(float(yaw_sigma), _MIN_YAW_SIGMA) if np.isfinite(yaw_sigma) else _DEFAULT_YAW_SIGMA
+        measured = ground_plane_chord(correspondences, init.T_tractor, self.rig.axle_x("tractor"), self._ground_options, yaw_sigma)
+        if not measured.ok:
+            logger.debug("frame %d: no ground-plane chord (%s, %d candidates)", second.frame, measured.status.value, measured.candidates)
+            return init
+        logger.debug("frames %d-%d: ground-plane chord %.4f +- %.4f m from %d road points (yaw sigma %.3f deg)",
+                     first.frame, second.frame, measured.chord, measured.sigma, measured.inlier_count, np.degrees(yaw_sigma))
+        chord, sigma = measured.chord, measured.sigma
+        if init.scale_chord is not None:  # independent measurements of the same chord
+            other_chord, other_sigma = init.scale_chord
+            weights = np.array([1.0 / sigma**2, 1.0 / other_sigma**2])
+            chord, sigma = float(weights @ [chord, other_chord] / weights.sum()), float(1.0 / np.sqrt(weights.sum()))
+        T_tractor = init.T_tractor
+        if init.tractor_status is MotionStatus.SCALE_UNOBSERVABLE:  # a better initial value than the predicted chord
+            axle_x = self.rig.axle_x("tractor")
+            sign = 1.0 if _chord_of(T_tractor, axle_x) >= 0.0 else -1.0
+            T_tractor = make_pose(*ackermann_motion(float(np.arctan2(T_tractor[1, 0], T_tractor[0, 0])), sign * chord, axle_x))
+        return dataclasses.replace(init, T_tractor=T_tractor, scale_chord=(chord, sigma))
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from ampc_vo.config import VoConfig, save_config
 from ampc_vo.geometry import make_pose, relative_pose, rot_z, yaw_of
-from ampc_vo.motion_init import MotionInitializer, TractorMotion
+from ampc_vo.motion_init import MotionInitializer, TractorMotion, camera_pairs
 from ampc_vo.observations import FrameObservations
 from ampc_vo.outputs import OutputWriter
 from ampc_vo.rig import Rig
@@ -109,6 +109,7 @@ class OdometryPipeline:
         self._statuses: dict[str, int] = {}
         self._bootstrapping = True
         self._bootstrap: list[tuple[FrameObservations, TractorMotion | None]] = []
+        self._bootstrap_speeds: list[float | None] = []  # measured metric speed of each bootstrap pair
 
     # ------------------------------------------------------------------ prediction
     def _predicted(self, elapsed_s: float, velocity: tuple[float, float] | None) -> np.ndarray:
@@ -134,6 +135,8 @@ class OdometryPipeline:
         if self._bootstrapping:
             return self._process_bootstrap(frame, elapsed)
         predicted = self._predicted(elapsed, self._velocity)
+        if self._clearly_no_keyframe(frame, predicted, elapsed):
+            return []
         # constant-speed prediction: sigma from the smooth-speed acceleration sigma (DESIGN 2.3)
         acceleration = self.config.scale.smooth_speed_sigma_mps2 or 1.0
         predicted_chord = float(np.linalg.norm(predicted[:2, 3]))
@@ -143,6 +146,18 @@ class OdometryPipeline:
         if not decision.is_keyframe:
             return []
         return self._add_keyframe(frame, tractor, elapsed)
+
+    def _clearly_no_keyframe(self, frame: FrameObservations, predicted: np.ndarray, elapsed: float) -> bool:
+        """True when the constant-velocity prediction is far below the keyframe thresholds
+        (``keyframes.prediction_gate``) and the tracks shared with the last keyframe are plenty:
+        the frame cannot be a keyframe and its tractor RANSAC is skipped (about 20 ms per frame)."""
+        gate = self.config.keyframes.prediction_gate
+        if gate <= 0.0 or self._velocity is None or elapsed >= gate * self.policy.max_interval_s:
+            return False
+        if np.linalg.norm(predicted[:2, 3]) >= gate * self.config.keyframes.min_distance_m or abs(yaw_of(predicted)) >= gate * self.policy.min_rotation_rad:
+            return False
+        shared = sum(len(pair) for pair in camera_pairs(self.rig, "tractor", self._last_keyframe, frame))
+        return shared >= 4 * self.config.keyframes.min_tracks
 
     def _add_keyframe(self, frame: FrameObservations, tractor: TractorMotion, elapsed: float) -> list[KeyframeEstimate]:
         predicted_trailer = self._predicted(elapsed, self._trailer_velocity) if self._trailer_velocity is not None else None
@@ -168,11 +183,15 @@ class OdometryPipeline:
         observed = tractor.status is MotionStatus.OK and tractor.chord >= self.config.keyframes.standstill_distance_m
         if not (observed or rotation or tractor.status is MotionStatus.TOO_FEW_TRACKS or elapsed >= scale.bootstrap_interval_s - 1e-9):
             return []
+        measured = self.initializer.measured_chord(self._last_keyframe, frame, tractor)
         self._bootstrap.append((frame, tractor))
+        self._bootstrap_speeds.append(None if measured is None else measured[0] / elapsed)
         self._last_keyframe = frame
-        speeds = [motion.chord / (kf.timestamp - previous.timestamp)
-                  for (previous, _), (kf, motion) in zip(self._bootstrap, self._bootstrap[1:])
-                  if motion is not None and motion.status is MotionStatus.OK]
+        # a measured metric chord (ground plane, stereo) is preferred to the 2-point chord, which is
+        # weak on a straight start (DESIGN 2.3)
+        speeds = [measured_speed if measured_speed is not None else motion.chord / (kf.timestamp - previous.timestamp)
+                  for (previous, _), (kf, motion), measured_speed in zip(self._bootstrap, self._bootstrap[1:], self._bootstrap_speeds)
+                  if measured_speed is not None or (motion is not None and motion.status is MotionStatus.OK)]
         waited = frame.timestamp - self._bootstrap[0][0].timestamp
         if len(speeds) < scale.bootstrap_pairs and waited < scale.bootstrap_max_s:
             return []

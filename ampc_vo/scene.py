@@ -66,8 +66,12 @@ WALL_TEXTURES = ("concrete", "brick")
 OBJECT_TEXTURES = ("wood", "metal", "concrete")
 _ROAD_STEP_M = 2.0
 _ROAD_OVERLAP_M = 0.6
-_ROAD_Z = 0.02
-_SHOULDER_Z = 0.01
+# the asphalt is the road surface at z = 0 (the body origin's height: ground truth, the
+# ground-plane scale and KITTI agree on it); shoulders and grass lie slightly below it so the
+# overlapping quads do not z-fight
+_ROAD_Z = 0.0
+_SHOULDER_Z = -0.01
+_GRASS_Z = -0.02
 _UP = np.array([0.0, 0.0, 1.0])
 
 
@@ -165,7 +169,7 @@ def box_quads(center: np.ndarray, yaw: float, size: tuple[float, float, float], 
 def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "SceneConfig | None" = None) -> Scene:
     """Procedural world along a trajectory (``kinematics.Trajectory``) for rendering and landmarks.
 
-    Quads: one large grass ``ground`` plane (z = 0), gravel shoulders and the asphalt ``road`` strip
+    Quads: one large grass ``ground`` plane (2 cm below the road), gravel shoulders and the asphalt ``road`` strip
     (slightly raised, so the renderer's nearest hit shows them), vertical ``facade`` quads (building
     fronts and low walls) on both sides at 5-25 m, facing the road, and free-standing ``box`` and
     ``pole`` objects. The road is extended straight before the start and after the end
@@ -185,7 +189,7 @@ def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "Sce
     half_road = config.road_width / 2.0
 
     low, high = centerline.points[:, :2].min(axis=0) - config.ground_margin_m, centerline.points[:, :2].max(axis=0) + config.ground_margin_m
-    quads: list[Quad] = [Quad(np.array([low[0], low[1], 0.0]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), float(high[0] - low[0]), float(high[1] - low[1]), "ground", "grass", 4.0)]
+    quads: list[Quad] = [Quad(np.array([low[0], low[1], _GRASS_Z]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), float(high[0] - low[0]), float(high[1] - low[1]), "ground", "grass", 4.0)]
     quads += _strip_quads(centerline, -half_road, half_road, _ROAD_Z, "road", "asphalt", 4.0)
     quads += _strip_quads(centerline, half_road, half_road + config.shoulder_width, _SHOULDER_Z, "ground", "gravel", 3.0)
     quads += _strip_quads(centerline, -half_road - config.shoulder_width, -half_road, _SHOULDER_Z, "ground", "gravel", 3.0)

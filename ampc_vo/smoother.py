@@ -6,9 +6,16 @@ in seconds (keys carry their keyframe's timestamp; older keys are marginalised).
 
 Factors added with keyframe k (``j`` < k are the keyframes still in the window):
 
-* GEC (paper eq. (1), one vectorised factor per camera and keyframe pair): tractor cameras on
-  ``X(j), X(k)``, trailer cameras on ``Y(j), Y(k)``, for every pair with ``k - j <=
-  max_pair_gap`` that shares enough tracks and moved (the residual is undefined at standstill).
+* GEC (paper eq. (1)): tractor cameras on ``X(j), X(k)``, trailer cameras on ``Y(j), Y(k)``, for
+  every pair with ``k - j <= max_pair_gap`` that shares enough tracks and moved (the residual is
+  undefined at standstill); with ``scale.cross_camera`` also **cross-camera** blocks: camera a at
+  keyframe j and camera b != a of the same body at k, associated by equal
+  ``CameraObservations.landmark_ids`` (two-camera / Plücker form, ``c_i != c_j``), which make
+  metric scale observable in straight driving (DESIGN 2.3), up to ``cross_camera_max_gap``
+  keyframes apart in the joint modes (``max_pair_gap`` in ``tractor_only`` and ``separate``, where
+  longer gaps made the scale collapse on the demo route), gated at ``cross_camera_gate_px``. All
+  blocks of keyframe k form one :class:`factors.StackedEpipolarFactor` (6 rows per keyframe pair
+  for GTSAM, Huber per correspondence inside): one Python call per evaluation (issue 5 timing).
   Outliers: an observation is used only if the RANSAC of its keyframe pair (k-1, k) kept it
   (``MotionInit.inlier_tracks``; per-frame outliers otherwise survive into longer pairs and a
   handful of them, through their large Sampson Jacobians, biased the window by metres), then
@@ -24,6 +31,13 @@ Factors added with keyframe k (``j`` < k are the keyframes still in the window):
 * Recovery: at standstill a tight zero-motion prior; when a body has no motion estimate (too few
   tracks) or an unobservable scale, a weak prior on the predicted motion keeps the system
   well-posed.
+
+The small residuals of keyframe k (planar, non-holonomic, motion priors, joint loop, scale chord)
+are terms of one :class:`factors.stacked.StackedFactor` (same error and linear system as one
+factor each); the smooth-speed prior keeps a factor of its own (it reaches back to k-2). Every
+Python factor caches its last evaluation (:mod:`factors._custom`), so LM's repeated evaluations
+at the same values and the marginals' linearisation cost no numpy work. LM stops after a
+relative error decrease below ``lm_relative_error_tol`` (1e-4: 2-3 steps per update instead of 3-4).
 
 Modes (issue 5): ``full``; ``tractor_only`` (no Y, A); ``no_trailer_constraint`` (no trailer NH);
 ``separate`` (no joint loop and no A: each body on its own cameras, θ afterwards from the two
@@ -41,6 +55,7 @@ from __future__ import annotations
 
 import logging
 import time
+from functools import partial
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -51,8 +66,16 @@ from gtsam.symbol_shorthand import A, X, Y
 from ampc_vo.config import VoConfig
 from ampc_vo.epipolar import gec_sampson
 from ampc_vo.geometry import make_pose, relative_pose, rot_z, wrap_angle, yaw_of
-from ampc_vo.observations import FrameObservations, match_tracks
+from ampc_vo.observations import CameraObservations, FrameObservations, match_tracks
 from ampc_vo.rig import Camera, Rig
+from factors._custom import POSE, SCALAR
+from factors.epipolar import EpipolarBlock
+from factors.joint_loop import joint_loop_error
+from factors.nonholonomic import nonholonomic_error
+from factors.planar import planar_motion_error
+from factors.relative_pose import relative_pose_error
+from factors.stacked import StackedFactor, Term
+from factors.wheel_speed import chord_error
 from factors.relative_pose import RelativePoseFactor
 from factors.smooth_speed import SmoothSpeedFactor
 
@@ -113,6 +136,8 @@ class BackendTiming:
     optimisation: float = 0.0
     marginals: float = 0.0
     residuals: int = 0
+    cpu: float = 0.0  # process CPU seconds of the whole update (robust to other load on the machine)
+    iterations: int = 0  # LM iterations of the smoother update
 
     @property
     def total(self) -> float:
@@ -128,6 +153,18 @@ class _Keyframe:
     init: MotionInit
     chord: float = 0.0  # distance of the hitch from the previous keyframe (initial value)
     dt: float = 0.0
+    landmarks: dict = field(default_factory=dict)  # per camera: (usable indices, their landmark ids), computed once
+
+    def usable_landmarks(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
+        """Indices of the camera's observations with a usable landmark id (:func:`match_landmarks`) and the ids."""
+        if camera not in self.landmarks:
+            observations = self.observations.cameras[camera]
+            if observations.landmark_ids is None:
+                self.landmarks[camera] = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+            else:
+                usable = _usable_landmarks(observations.landmark_ids)
+                self.landmarks[camera] = (usable, np.asarray(observations.landmark_ids, dtype=np.int64)[usable])
+        return self.landmarks[camera]
 
 
 @dataclass
@@ -138,6 +175,13 @@ class _Pending:
     values: gtsam.Values = field(default_factory=gtsam.Values)
     timestamps: dict[int, float] = field(default_factory=dict)
     residuals: int = 0
+    terms: list = field(default_factory=list)  # small residuals of one keyframe, stacked into one factor
+
+    def flush_terms(self) -> None:
+        """Add the collected terms as one :class:`factors.stacked.StackedFactor` (issue 5 timing)."""
+        if self.terms:
+            self.graph.add(StackedFactor(self.terms))
+            self.terms = []
 
     def insert(self, key: int, value, timestamp: float) -> None:
         if isinstance(value, float):
@@ -147,14 +191,35 @@ class _Pending:
         self.timestamps[key] = timestamp
 
 
-def _robust(base: gtsam.noiseModel.Base, huber_k: float) -> gtsam.noiseModel.Base:
-    """Per-residual Huber weighting (Scalar reweight scheme, DESIGN section 3)."""
-    huber = gtsam.noiseModel.mEstimator.Huber.Create(huber_k, gtsam.noiseModel.mEstimator.Base.ReweightScheme.Scalar)
-    return gtsam.noiseModel.Robust.Create(huber, base)
+def match_landmarks(first: CameraObservations, second: CameraObservations) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``(index_first, index_second)`` of the observations of two *different* cameras that
+    see the same landmark (equal ``landmark_ids`` >= 0; ids seen twice in one camera are ambiguous
+    and dropped). Empty when either camera has no landmark ids."""
+    empty = np.zeros(0, dtype=np.int64)
+    if first.landmark_ids is None or second.landmark_ids is None:
+        return empty, empty
+    usable_first, usable_second = _usable_landmarks(first.landmark_ids), _usable_landmarks(second.landmark_ids)
+    _, index_first, index_second = np.intersect1d(first.landmark_ids[usable_first], second.landmark_ids[usable_second], assume_unique=True, return_indices=True)
+    return usable_first[index_first], usable_second[index_second]
+
+
+def _usable_landmarks(landmark_ids: np.ndarray) -> np.ndarray:
+    """Indices of the known (>= 0) landmark ids that occur once."""
+    ids = np.asarray(landmark_ids, dtype=np.int64)
+    values, counts = np.unique(ids, return_counts=True)
+    return np.flatnonzero((ids >= 0) & ~np.isin(ids, values[counts > 1]))
 
 
 def _pose_sigmas(rotation_rad: float, translation_m: float) -> gtsam.noiseModel.Base:
-    return gtsam.noiseModel.Diagonal.Sigmas(np.array([rotation_rad] * 3 + [translation_m] * 3))
+    return gtsam.noiseModel.Diagonal.Sigmas(_pose_sigma_vector(rotation_rad, translation_m))
+
+
+def _pose_sigma_vector(rotation_rad: float, translation_m: float) -> np.ndarray:
+    """Sigmas of a pose residual in GTSAM tangent order ``[omega, v]``."""
+    return np.array([rotation_rad] * 3 + [translation_m] * 3)
+
+
+_IDENTITY_POSE = gtsam.Pose3()
 
 
 class ArticulatedSmoother:
@@ -187,7 +252,6 @@ class ArticulatedSmoother:
         self._separate_hitch: dict[int, float] = {}
         self.timings: list[BackendTiming] = []
         self._rng = np.random.default_rng(config.ransac.seed)
-        self._noise_cache: dict[tuple[str, int], gtsam.noiseModel.Base] = {}
         self._last_state: dict[str, str] = {}
         self._marginals: gtsam.Marginals | None = None
 
@@ -211,14 +275,17 @@ class ArticulatedSmoother:
             horizon = keyframe.timestamp - self.config.smoother.lag_s
             leaving = [self._publish(self._window[index], self._sigma_of(index)) for index in sorted(self._window) if self._window[index].timestamp < horizon]
         started = time.perf_counter()
+        cpu_started = time.process_time()
         pending = _Pending()
         published_indices = []
         if self._pending_first is not None:
             first = self._pending_first
             self._pending_first = None
             self._add_first(first, init, pending)
+            pending.flush_terms()
             published_indices.append(first.index)
         self._add_next(keyframe, pending)
+        pending.flush_terms()
         published_indices.append(keyframe.index)
         timing.factors = time.perf_counter() - started
         timing.residuals = pending.residuals
@@ -228,7 +295,7 @@ class ArticulatedSmoother:
         for key, stamp in pending.timestamps.items():
             stamps.insert((key, stamp))
         try:
-            self._smoother.update(pending.graph, pending.values, stamps)
+            timing.iterations = int(self._smoother.update(pending.graph, pending.values, stamps).getIterations())
         except RuntimeError as error:
             self._recover(keyframe, pending, error)
         self._estimate = self._smoother.calculateEstimate()
@@ -242,6 +309,7 @@ class ArticulatedSmoother:
         self._marginals = self._compute_marginals(keyframe.index)
         sigma = self._sigma_of(keyframe.index)
         timing.marginals = time.perf_counter() - started
+        timing.cpu = time.process_time() - cpu_started
         self.timings.append(timing)
         if lagged:
             return leaving
@@ -287,6 +355,7 @@ class ArticulatedSmoother:
                 restart.insert(A(k), float(hitch), keyframe.timestamp)
                 restart.graph.add(gtsam.PriorFactorDouble(A(k), float(hitch), gtsam.noiseModel.Isotropic.Sigma(1, np.radians(5.0))))
                 self._add_joint_loop(k, restart)
+                restart.flush_terms()
             else:
                 restart.graph.add(gtsam.PriorFactorPose3(Y(k), gtsam.Pose3(T_world_trailer), prior))
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
@@ -365,43 +434,40 @@ class ArticulatedSmoother:
 
         bodies = ["tractor"] + (["trailer"] if self.use_trailer else [])
         standstill = init.tractor_status is MotionStatus.STANDSTILL
+        epipolar_blocks: list[tuple[EpipolarBlock, float]] = []
         for body in bodies:
             key = X if body == "tractor" else Y
             # in the joint modes the trailer pose follows from X and A (joint loop): no own motion priors
             own_motion = body == "tractor" or not self.joint
             status = init.tractor_status if body == "tractor" else init.trailer_status
+            pair = (key(previous), key(k))
             if own_motion:
-                planar_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([np.radians(config.planar_rotation_sigma_deg)] * 2 + [config.planar_height_sigma_m]))
-                pending.graph.add(self._planar_factor(key(previous), key(k), planar_noise))
+                planar_sigmas = np.array([np.radians(config.planar_rotation_sigma_deg)] * 2 + [config.planar_height_sigma_m])
+                pending.terms.append(Term(pair, (POSE, POSE), planar_motion_error, planar_sigmas))
             if standstill:
                 if own_motion:
-                    tight = _pose_sigmas(np.radians(config.standstill_rotation_sigma_deg), config.standstill_translation_sigma_m)
-                    pending.graph.add(RelativePoseFactor(key(previous), key(k), np.eye(4), tight))
+                    tight = _pose_sigma_vector(np.radians(config.standstill_rotation_sigma_deg), config.standstill_translation_sigma_m)
+                    pending.terms.append(Term(pair, (POSE, POSE), partial(relative_pose_error, _IDENTITY_POSE), tight))
                 continue
             if body == "tractor" or self.trailer_nonholonomic:
-                nh_noise = _robust(gtsam.noiseModel.Isotropic.Sigma(1, config.nonholonomic_sigma_m), config.huber_k)
-                pending.graph.add(self._nonholonomic_factor(key(previous), key(k), self.rig.axle_x(body), nh_noise))
-            linked = self._add_epipolar_factors(body, keyframe, pending)
+                pending.terms.append(Term(pair, (POSE, POSE), partial(nonholonomic_error, axle_x=self.rig.axle_x(body)), np.array([config.nonholonomic_sigma_m]), config.huber_k))
+            linked = self._add_epipolar_factors(body, keyframe, pending, epipolar_blocks)
             if own_motion:
                 # weak prior on the initial motion when it was not estimated; a 3x weaker regulariser
                 # otherwise (keeps the system well-posed when the scale is unobservable, DESIGN 2.3)
                 inflation = 1.0 if (status is not MotionStatus.OK or not linked) else 3.0
-                weak = _pose_sigmas(inflation * np.radians(config.weak_motion_rotation_sigma_deg), inflation * config.weak_motion_translation_sigma_m)
-                T_prior = relative_pose(self._pose(key(previous), pending), self._pose(key(k), pending))
-                pending.graph.add(RelativePoseFactor(key(previous), key(k), T_prior, weak))
-            if own_motion:
+                weak = _pose_sigma_vector(inflation * np.radians(config.weak_motion_rotation_sigma_deg), inflation * config.weak_motion_translation_sigma_m)
+                T_prior = gtsam.Pose3(relative_pose(self._pose(key(previous), pending), self._pose(key(k), pending)))
+                pending.terms.append(Term(pair, (POSE, POSE), partial(relative_pose_error, T_prior), weak))
                 self._add_smooth_speed(key, keyframe, pending)
+            axle_x = self.rig.axle_x("tractor")
             if body == "tractor" and self.config.scale.wheel_speed and init.wheel_chord is not None:
-                from factors import WheelSpeedFactor
-
-                wheel_noise = gtsam.noiseModel.Isotropic.Sigma(1, self.config.scale.wheel_speed_sigma_m)
-                pending.graph.add(WheelSpeedFactor(X(previous), X(k), self.rig.axle_x("tractor"), float(init.wheel_chord), wheel_noise))
+                pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(init.wheel_chord)),
+                                          np.array([self.config.scale.wheel_speed_sigma_m])))
             if body == "tractor" and init.scale_chord is not None:
-                from factors import WheelSpeedFactor
-
                 chord, chord_sigma = init.scale_chord
-                chord_noise = _robust(gtsam.noiseModel.Isotropic.Sigma(1, float(chord_sigma)), self.config.smoother.huber_k)
-                pending.graph.add(WheelSpeedFactor(X(previous), X(k), self.rig.axle_x("tractor"), float(chord), chord_noise))
+                pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(chord)), np.array([float(chord_sigma)]), config.huber_k))
+        self._add_stacked_epipolar(epipolar_blocks, pending)
 
     def _initial_hitch(self, keyframe: _Keyframe, pending: _Pending) -> float:
         """θ_k: the 1-point RANSAC estimate if any, else held (standstill) or predicted by the
@@ -440,23 +506,10 @@ class ArticulatedSmoother:
 
     # ------------------------------------------------------------------ factors
     def _add_joint_loop(self, k: int, pending: _Pending) -> None:
-        from factors import JointLoopFactor
-
+        """Joint loop ``X(k), Y(k), A(k)`` (paper eqs. (3)-(5)) as a term of the keyframe's stacked factor."""
         config = self.config.smoother
-        noise = _pose_sigmas(np.radians(config.joint_loop_rotation_sigma_deg), config.joint_loop_translation_sigma_m)
-        pending.graph.add(JointLoopFactor(X(k), Y(k), A(k), noise))
-
-    @staticmethod
-    def _planar_factor(key_i: int, key_j: int, noise: gtsam.noiseModel.Base):
-        from factors import PlanarMotionFactor
-
-        return PlanarMotionFactor(key_i, key_j, noise)
-
-    @staticmethod
-    def _nonholonomic_factor(key_i: int, key_j: int, axle_x: float, noise: gtsam.noiseModel.Base):
-        from factors import NonHolonomicFactor
-
-        return NonHolonomicFactor(key_i, key_j, axle_x, noise)
+        sigmas = _pose_sigma_vector(np.radians(config.joint_loop_rotation_sigma_deg), config.joint_loop_translation_sigma_m)
+        pending.terms.append(Term((X(k), Y(k), A(k)), (POSE, POSE, SCALAR), joint_loop_error, sigmas))
 
     def _add_smooth_speed(self, key, keyframe: _Keyframe, pending: _Pending) -> None:
         sigma = self.config.scale.smooth_speed_sigma_mps2
@@ -469,19 +522,37 @@ class ArticulatedSmoother:
         noise = gtsam.noiseModel.Isotropic.Sigma(1, sigma * 0.5 * (previous.dt + keyframe.dt))
         pending.graph.add(SmoothSpeedFactor(key(k - 2), key(k - 1), key(k), previous.dt, keyframe.dt, noise))
 
-    def _gec_noise(self, camera: Camera, count: int) -> gtsam.noiseModel.Base:
-        cache_key = (camera.name, count)
-        noise = self._noise_cache.get(cache_key)
-        if noise is None:
-            sigma = self.config.smoother.pixel_sigma / (0.5 * (camera.fx + camera.fy))
-            noise = _robust(gtsam.noiseModel.Isotropic.Sigma(count, sigma), self.config.smoother.huber_k)
-            self._noise_cache[cache_key] = noise
-        return noise
+    def _gec_sigma(self, camera: Camera) -> float:
+        """Sampson residual sigma of a camera: pixel sigma / focal length (DESIGN section 3)."""
+        return self.config.smoother.pixel_sigma / (0.5 * (camera.fx + camera.fy))
 
-    def _add_epipolar_factors(self, body: str, keyframe: _Keyframe, pending: _Pending) -> bool:
-        """GEC factors between keyframe k and the earlier keyframes of the window (module docstring).
-        Returns True when at least one factor links k to k-1."""
-        from factors import GeneralizedEpipolarFactor
+    def _add_stacked_epipolar(self, blocks: list[tuple[EpipolarBlock, float]], pending: _Pending) -> None:
+        """One :class:`factors.StackedEpipolarFactor` with all GEC blocks of the new keyframe (both
+        bodies, every keyframe pair and camera pair), Huber per residual, 6 rows per keyframe pair.
+        It is marginalised when its oldest key leaves the window: with pairs up to 3 keyframes
+        apart, as before when the rows of (k-3, k) had factors of their own."""
+        if not blocks:
+            return
+        from factors import StackedEpipolarFactor
+
+        factor = StackedEpipolarFactor([block for block, _ in blocks], [sigma for _, sigma in blocks], self.config.smoother.huber_k)
+        pending.graph.add(factor)
+        pending.residuals += len(factor)
+
+    def _verified(self, keyframe: _Keyframe, camera: str, observations: CameraObservations, index: np.ndarray) -> np.ndarray:
+        """Mask of the observations ``index`` that the RANSAC of their keyframe pair kept (all True
+        when there is no RANSAC verdict: the first keyframe, or no estimate)."""
+        if keyframe.init.tractor_status is MotionStatus.FIRST:
+            return np.ones(index.shape[0], dtype=bool)
+        verified = keyframe.init.inlier_tracks.get(camera)
+        if verified is None:
+            return np.ones(index.shape[0], dtype=bool)
+        return np.isin(observations.track_ids[index], verified)
+
+    def _add_epipolar_factors(self, body: str, keyframe: _Keyframe, pending: _Pending, blocks: list[tuple[EpipolarBlock, float]]) -> bool:
+        """GEC blocks between keyframe k and the earlier keyframes of the window (module docstring),
+        appended to ``blocks``. Returns True when at least one block links k to k-1."""
+        from factors import body_correspondences
 
         config = self.config
         key = X if body == "tractor" else Y
@@ -489,51 +560,67 @@ class ArticulatedSmoother:
         lag_start = keyframe.timestamp - config.smoother.lag_s
         linked_previous = False
         T_world_k = self._pose(key(k), pending)
-        for j in range(k - 1, max(k - 1 - config.smoother.max_pair_gap, -1), -1):
+        cameras = self.rig.cameras_on(body)
+        cross_gap = 0
+        if config.scale.cross_camera and len(cameras) > 1:
+            # long cross-camera gaps only with the trailer coupling (joint modes): on a single body
+            # (tractor_only, separate) gaps beyond max_pair_gap made the scale collapse after a
+            # straight start on the demo route (not understood yet; issue 5 report)
+            cross_gap = config.scale.cross_camera_max_gap if self.joint else min(config.scale.cross_camera_max_gap, config.smoother.max_pair_gap)
+        for j in range(k - 1, max(k - 1 - max(config.smoother.max_pair_gap, cross_gap), -1), -1):
             earlier = self._window.get(j)
             if earlier is None or earlier.timestamp < lag_start:
                 break
             T_j_k = relative_pose(self._pose(key(j), pending), T_world_k)
             if np.linalg.norm(T_j_k[:3, 3]) < config.keyframes.standstill_distance_m:
                 continue
-            for camera in self.rig.cameras_on(body):
-                first = earlier.observations.cameras.get(camera.name)
-                second = keyframe.observations.cameras.get(camera.name)
-                if first is None or second is None or len(first) == 0 or len(second) == 0:
+            for camera_j in cameras:
+                first = earlier.observations.cameras.get(camera_j.name)
+                if first is None or len(first) == 0:
                     continue
-                index_j, index_k = match_tracks(first, second)
-                # per-observation outlier rejection: an observation is used only if the RANSAC of its
-                # keyframe's pair (k-1, k) kept it; without a RANSAC verdict the pose gate decides
-                verified_k = keyframe.init.inlier_tracks.get(camera.name)
-                if verified_k is not None:
-                    valid = np.isin(second.track_ids[index_k], verified_k)
+                for camera_k in cameras:
+                    second = keyframe.observations.cameras.get(camera_k.name)
+                    if second is None or len(second) == 0:
+                        continue
+                    if camera_k is camera_j:
+                        if k - j > config.smoother.max_pair_gap:
+                            continue
+                        index_j, index_k = match_tracks(first, second)
+                        gate_px = config.smoother.gate_px
+                    else:
+                        if k - j > cross_gap:
+                            continue
+                        (usable_j, ids_j), (usable_k, ids_k) = earlier.usable_landmarks(camera_j.name), keyframe.usable_landmarks(camera_k.name)
+                        _, index_j, index_k = np.intersect1d(ids_j, ids_k, assume_unique=True, return_indices=True)
+                        index_j, index_k = usable_j[index_j], usable_k[index_k]
+                        gate_px = config.scale.cross_camera_gate_px
+                    if index_j.size < config.keyframes.min_tracks:
+                        continue
+                    # per-observation outlier rejection: an observation is used only if the RANSAC of
+                    # its keyframe's pair (k-1, k) kept it; without a RANSAC verdict the pose gate decides
+                    valid = self._verified(keyframe, camera_k.name, second, index_k) & self._verified(earlier, camera_j.name, first, index_j)
                     index_j, index_k = index_j[valid], index_k[valid]
-                verified_j = earlier.init.inlier_tracks.get(camera.name)
-                if verified_j is not None and earlier.init.tractor_status is not MotionStatus.FIRST:
-                    valid = np.isin(first.track_ids[index_j], verified_j)
-                    index_j, index_k = index_j[valid], index_k[valid]
-                if index_j.size < config.keyframes.min_tracks:
-                    continue
-                bearings_j, bearings_k = first.bearings[index_j], second.bearings[index_k]
-                keep = self._gate(camera, bearings_j, bearings_k, T_j_k)
-                if keep.sum() < config.keyframes.min_tracks:
-                    continue
-                bearings_j, bearings_k = bearings_j[keep], bearings_k[keep]
-                cap = config.smoother.max_window_tracks_per_camera
-                if bearings_j.shape[0] > cap:
-                    chosen = np.sort(self._rng.choice(bearings_j.shape[0], cap, replace=False))
-                    bearings_j, bearings_k = bearings_j[chosen], bearings_k[chosen]
-                count = bearings_j.shape[0]
-                pending.graph.add(GeneralizedEpipolarFactor(key(j), key(k), camera.T_body_camera, bearings_j, bearings_k, self._gec_noise(camera, count)))
-                pending.residuals += count
-                linked_previous |= j == k - 1
+                    if index_j.size < config.keyframes.min_tracks:
+                        continue
+                    bearings_j, bearings_k = first.bearings[index_j], second.bearings[index_k]
+                    keep = self._gate(camera_j, camera_k, bearings_j, bearings_k, T_j_k, gate_px)
+                    if keep.sum() < config.keyframes.min_tracks:
+                        continue
+                    bearings_j, bearings_k = bearings_j[keep], bearings_k[keep]
+                    cap = config.smoother.max_window_tracks_per_camera
+                    if bearings_j.shape[0] > cap:
+                        chosen = np.sort(self._rng.choice(bearings_j.shape[0], cap, replace=False))
+                        bearings_j, bearings_k = bearings_j[chosen], bearings_k[chosen]
+                    correspondences = body_correspondences(camera_j.T_body_camera, bearings_j, bearings_k, camera_k.T_body_camera)
+                    sigma = 0.5 * (self._gec_sigma(camera_j) + self._gec_sigma(camera_k))
+                    blocks.append((EpipolarBlock(key(j), key(k), correspondences), sigma))
+                    linked_previous |= j == k - 1
         return linked_previous
 
-    def _gate(self, camera: Camera, bearings_i: np.ndarray, bearings_j: np.ndarray, T_i_j: np.ndarray) -> np.ndarray:
-        """Correspondences whose Sampson residual under the initial motion is below the gate."""
-        R_body_camera = camera.R_body_camera
-        residual = gec_sampson(bearings_i @ R_body_camera.T, bearings_j @ R_body_camera.T, T_i_j[:3, :3], T_i_j[:3, 3], camera.center)
-        threshold = self.config.smoother.gate_px / (0.5 * (camera.fx + camera.fy))
+    def _gate(self, camera_i: Camera, camera_j: Camera, bearings_i: np.ndarray, bearings_j: np.ndarray, T_i_j: np.ndarray, gate_px: float) -> np.ndarray:
+        """Correspondences whose Sampson residual under the initial motion is below ``gate_px``."""
+        residual = gec_sampson(bearings_i @ camera_i.R_body_camera.T, bearings_j @ camera_j.R_body_camera.T, T_i_j[:3, :3], T_i_j[:3, 3], camera_i.center, camera_j.center)
+        threshold = gate_px / (0.25 * (camera_i.fx + camera_i.fy + camera_j.fx + camera_j.fy))
         return np.abs(residual) < threshold
 
     # ------------------------------------------------------------------ results
@@ -615,6 +702,10 @@ class ArticulatedSmoother:
         }
         if body == "trailer" and status is not MotionStatus.STANDSTILL:
             message = "no trailer estimate (" + status.value + "): hitch angle predicted by the trailer model, sigma grows"
+        elif status is MotionStatus.SCALE_UNOBSERVABLE and body == "tractor" and keyframe.init.scale_chord is not None:
+            # not a degraded state: the 2-point chord is unobservable, a measured chord replaces it
+            logger.info("frame %d: tractor straight driving: chord from the measured metric chord (ground plane / stereo)", keyframe.frame)
+            return
         else:
             message = messages.get(status, status.value)
         logger.warning("frame %d: %s %s", keyframe.frame, body, message)

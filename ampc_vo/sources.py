@@ -5,8 +5,12 @@ One pipeline, two sources of the same measurements (DESIGN section 4): every sou
 sees. Which source a folder gets:
 
 - a KITTI odometry folder (``calib.txt`` and left/right image folders, recognised by its files):
-  the image frontend on the rigid two-camera rig, with the left/right stereo pair matched every
-  frame (cross-camera correspondences keep metric scale on the nearly straight clip);
+  the image frontend on the rigid two-camera rig (:func:`stereo_image_steps`): the left camera is
+  tracked, its features are matched into the right image every frame, and both cameras carry them
+  as ``landmark_ids`` (cross-camera correspondences keep metric scale on the nearly straight clip:
+  the smoother's two-camera GEC and the stereo chord of :mod:`ampc_vo.stereo_scale`). Its default
+  config is ``configs/vo/kitti.yaml`` (:func:`default_config_path`); ground truth is compared in
+  the left-camera frame (``T_body_reference``, ``GroundTruth.T_tractor_reference``);
 - our dataset folder (DESIGN section 5) with images: the image frontend on every rig camera;
 - our dataset folder with ``measurements.npz`` and no images (or ``source: bearings``): the
   simulator's bearing measurements replayed.
@@ -17,6 +21,7 @@ the folder cannot provide is a :class:`DatasetError` that says what is missing.
 from __future__ import annotations
 
 import logging
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
@@ -27,7 +32,7 @@ from ampc_vo.config import VoConfig
 from ampc_vo.datasets.frame_images import load_frame_images
 from ampc_vo.errors import DatasetError
 from ampc_vo.evaluation import GroundTruth
-from ampc_vo.frontend import FrontendResult, MultiCameraFrontend
+from ampc_vo.frontend import FrontendResult, MultiCameraFrontend, match_stereo_image, observations_with_stereo
 from ampc_vo.observations import FrameObservations
 from ampc_vo.rig import Rig
 
@@ -67,17 +72,64 @@ class Sequence:
 
 def image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs: tuple[tuple[str, str], ...] = ()) -> Iterator[FrameStep]:
     """The image frontend over every frame of ``dataset`` (``camera_names``, ``timestamps``,
-    ``load_image``); a missing or corrupt image is logged and that camera re-initialises."""
-    with MultiCameraFrontend(rig, config.frontend, stereo_pairs=stereo_pairs, stereo_config=config.stereo) as frontend:
-        for frame in range(len(dataset)):
-            images = load_frame_images(dataset, frame)
+    ``load_image``); a missing or corrupt image is logged and that camera re-initialises. With
+    ``config.threads`` > 1 the next frame's images are decoded while this one is processed."""
+    frame_count = len(dataset)
+    with MultiCameraFrontend(rig, config.frontend, stereo_pairs=stereo_pairs, stereo_config=config.stereo, threads=config.threads) as frontend, \
+            ThreadPoolExecutor(max_workers=1) as loader:
+        upcoming = loader.submit(load_frame_images, dataset, 0) if frame_count and config.threads > 1 else None
+        for frame in range(frame_count):
+            images = upcoming.result() if upcoming is not None else load_frame_images(dataset, frame)
+            if upcoming is not None and frame + 1 < frame_count:
+                upcoming = loader.submit(load_frame_images, dataset, frame + 1)
             result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), images)
             yield FrameStep(result.observations, images, result)
+
+
+def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs: tuple[tuple[str, str], ...]) -> Iterator[FrameStep]:
+    """The image frontend for a rig with overlapping pairs (KITTI): the first camera of each pair
+    (and any camera in no pair) is tracked; the second camera is not tracked on its own, its
+    observations are the first camera's features found in its image (:func:`match_stereo_image`),
+    with the first camera's track ids; both carry ``landmark_ids`` = those ids
+    (:func:`observations_with_stereo`), the cross-camera association the smoother's two-camera GEC
+    and :mod:`ampc_vo.stereo_scale` use. About half the tracking cost of tracking both cameras."""
+    seconds = {second for _, second in stereo_pairs}
+    tracked = Rig(rig.bodies, tuple(camera for camera in rig.cameras if camera.name not in seconds))
+    frame_count = len(dataset)
+    with MultiCameraFrontend(tracked, config.frontend, threads=config.threads) as frontend, ThreadPoolExecutor(max_workers=1) as loader:
+        upcoming = loader.submit(load_frame_images, dataset, 0) if frame_count and config.threads > 1 else None
+        for frame in range(frame_count):
+            images = upcoming.result() if upcoming is not None else load_frame_images(dataset, frame)
+            if upcoming is not None and frame + 1 < frame_count:
+                upcoming = loader.submit(load_frame_images, dataset, frame + 1)
+            result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), {name: images.get(name) for name in frontend.trackers})
+            stereo = {}
+            for first, second in stereo_pairs:
+                stereo[(first, second)] = match_stereo_image(frontend.trackers[first], images.get(second), result.observations.cameras[first],
+                                                             rig.camera(second), config.stereo)
+            observations = observations_with_stereo(result.observations, stereo)
+            yield FrameStep(observations, images, FrontendResult(observations, result.reports, stereo))
 
 
 def _bearing_steps(measurements: object, rig: Rig) -> Iterator[FrameStep]:
     for observations in measurements.frames(rig):
         yield FrameStep(observations)
+
+
+KITTI_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "vo" / "kitti.yaml"
+
+
+def default_config_path(path: str | Path | None) -> Path | None:
+    """The VO config a dataset folder runs with when none is given: ``configs/vo/kitti.yaml`` for a
+    KITTI folder (car at 10 Hz, stereo scale), else ``None`` (the built-in defaults,
+    ``configs/vo/default.yaml``). ``None`` too when the file is not there (installed package)."""
+    if path is None:
+        return None
+    from ampc_vo.datasets.kitti import is_kitti_folder
+
+    if Path(path).is_dir() and is_kitti_folder(path) and KITTI_CONFIG.is_file():
+        return KITTI_CONFIG
+    return None
 
 
 def open_sequence(path: str | Path, config: VoConfig) -> Sequence:
@@ -124,5 +176,5 @@ def _open_kitti(path: Path, config: VoConfig) -> Sequence:
     dataset = load_kitti(path)
     logger.info("%s: KITTI folder, %d stereo frames", path, len(dataset))
     return Sequence(path, "kitti", dataset.rig, dataset.timestamps, dataset.truth,
-                    lambda: image_steps(dataset, dataset.rig, config, stereo_pairs=((LEFT, RIGHT),)),
+                    lambda: stereo_image_steps(dataset, dataset.rig, config, stereo_pairs=((LEFT, RIGHT),)),
                     T_body_reference=dataset.T_body_left_camera)

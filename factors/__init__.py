@@ -7,6 +7,8 @@ x forward, y left, z up; right perturbations, tangent ``[omega, v]``) and the hi
 (``*_error``) returning ``(residual, jacobians)`` for tests and reuse.
 
 - :class:`GeneralizedEpipolarFactor`: N Sampson GEC residuals of one camera (paper eqs. (1), (2)).
+- :class:`StackedEpipolarFactor`: many such blocks (cameras, camera pairs, keyframe pairs) in one factor.
+- :class:`StackedFactor`: small residuals (:class:`Term`) of one keyframe in one factor.
 - :class:`ArticulatedEpipolarFactor`: the same for a trailer camera on tractor poses and hitch angles (eq. (6)).
 - :class:`JointLoopFactor`: ``Log((X (Rz(theta), 0))^-1 Y)`` (eqs. (3)-(5)).
 - :class:`NonHolonomicFactor`: circular-arc constraint of a rigid axle (DESIGN (NH)).
@@ -18,20 +20,33 @@ Nothing here imports from the pipeline; only ``ampc_vo.geometry``, ``ampc_vo.epi
 ``ampc_vo.errors``.
 """
 from factors.articulated import ArticulatedEpipolarFactor, articulated_epipolar_error
-from factors.epipolar import BodyCorrespondences, GeneralizedEpipolarFactor, body_correspondences, epipolar_error
+from factors.epipolar import (
+    BodyCorrespondences,
+    EpipolarBlock,
+    GeneralizedEpipolarFactor,
+    StackedEpipolarFactor,
+    body_correspondences,
+    epipolar_error,
+    stacked_epipolar_error,
+)
 from factors.joint_loop import JointLoopFactor, joint_loop_error
 from factors.noise import robust_noise
 from factors.nonholonomic import NonHolonomicFactor, nonholonomic_error
 from factors.planar import PlanarMotionFactor, planar_motion_error
+from factors.stacked import StackedFactor, Term
 from factors.wheel_speed import WheelSpeedFactor, chord_error
 
 __all__ = [
     "ArticulatedEpipolarFactor",
     "BodyCorrespondences",
+    "EpipolarBlock",
     "GeneralizedEpipolarFactor",
     "JointLoopFactor",
     "NonHolonomicFactor",
     "PlanarMotionFactor",
+    "StackedEpipolarFactor",
+    "StackedFactor",
+    "Term",
     "WheelSpeedFactor",
     "articulated_epipolar_error",
     "body_correspondences",
@@ -41,4 +56,5 @@ __all__ = [
     "nonholonomic_error",
     "planar_motion_error",
     "robust_noise",
+    "stacked_epipolar_error",
 ]

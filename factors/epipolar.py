@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from ampc_vo.epipolar import gec_sampson, gec_sampson_jacobian
+from ampc_vo.epipolar import gec_sampson, gec_sampson_jacobian, gec_sampson_pairs_jacobian
 from factors._checks import check_bearing_pair, check_distinct_keys, check_noise_model, check_rigid_transform
 from factors._custom import POSE, make_error_function
 from factors._lie import relative_motion
@@ -130,3 +130,147 @@ class GeneralizedEpipolarFactor(gtsam.CustomFactor):
     ) -> tuple[np.ndarray, list[np.ndarray] | None]:
         """Unwhitened residuals (N,) and optionally the two (N, 6) Jacobians (see :func:`epipolar_error`)."""
         return epipolar_error(T_world_i, T_world_j, self.correspondences, jacobians)
+
+
+@dataclass(frozen=True)
+class EpipolarBlock:
+    """Correspondences of one camera (or camera pair) between two keyframes: a block of rows of a
+    :class:`StackedEpipolarFactor`. ``key_i``/``key_j``: the ``Pose3`` keys ``T_world_body`` of the
+    two views; ``correspondences`` from :func:`body_correspondences`."""
+
+    key_i: int
+    key_j: int
+    correspondences: BodyCorrespondences
+
+
+def huber_rows(whitened: np.ndarray, huber_k: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-residual Huber loss as residuals: ``z~ = sign(z) sqrt(2 rho(z))`` and ``d z~ / d z``.
+
+    ``rho(z) = z^2 / 2`` for ``|z| <= k``, ``k |z| - k^2 / 2`` beyond, so ``|z~|^2 / 2`` summed is
+    exactly the robust cost (which LM compares between steps) and the gradient ``z~ dz~/dz =
+    rho'(z)`` is Huber's; the Gauss-Newton weight beyond k is ``k^2 / (2 k |z| - k^2)``.
+    ``huber_k=None``: plain least squares.
+    """
+    if huber_k is None:
+        return whitened, np.ones_like(whitened)
+    magnitude = np.abs(whitened)
+    outside = magnitude > huber_k
+    robust = whitened.copy()
+    scale = np.ones_like(whitened)
+    if np.any(outside):
+        root = np.sqrt(2.0 * huber_k * magnitude[outside] - huber_k * huber_k)
+        robust[outside] = np.sign(whitened[outside]) * root
+        scale[outside] = huber_k / root
+    return robust, scale
+
+
+_EIGEN_FLOOR = 1e-12  # relative: information directions below it carry no information
+
+
+def stacked_epipolar_error(
+    poses: list[gtsam.Pose3],
+    pair_keys: np.ndarray,
+    pair_starts: np.ndarray,
+    rows: dict[str, np.ndarray],
+    huber_k: float | None,
+    jacobians: bool = False,
+) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Compressed residual (6 P + 1,) of a :class:`StackedEpipolarFactor` and, if ``jacobians``, one
+    (6 P + 1, 6) Jacobian per pose.
+
+    ``pair_keys`` (P, 2): indices into ``poses`` of views i and j of each keyframe pair; the rows of
+    pair p start at ``pair_starts[p]`` (rows sorted by pair); ``rows``: per-row body-frame bearings
+    and centres (``bearings_i``, ``bearings_j``, ``centers_i``, ``centers_j``, (N, 3)), the pair
+    index ``pair`` (N,) and the Sampson sigma ``sigma`` (N,). Steps: Sampson GEC per row, whitened
+    by its sigma, Huber per row (:func:`huber_rows`); then per pair the rows (a function of the
+    pair's relative motion only, 6 parameters) are replaced by the square root of their Gauss-Newton
+    system: with ``J^T J = V diag(w) V^T`` and ``g = J^T z``, rows ``diag(sqrt w) V^T`` and
+    residual ``diag(1/sqrt w) V^T g``; the last row carries the remaining residual norm (zero
+    Jacobian), so the error ``|r|^2 / 2`` is exactly the sum of the Huber losses and the linear
+    system (information and gradient) is exactly that of the N rows.
+    """
+    motions = [relative_motion(poses[i], poses[j]) for i, j in pair_keys]
+    rotations = np.array([T_i_j.rotation().matrix() for T_i_j, _ in motions])
+    translations = np.array([T_i_j.translation() for T_i_j, _ in motions])
+    sampson, by_motion = gec_sampson_pairs_jacobian(
+        rows["bearings_i"], rows["bearings_j"], rotations, translations, rows["centers_i"], rows["centers_j"], pair_starts
+    )
+    whitened, scale = huber_rows(sampson / rows["sigma"], huber_k)
+    weighted = by_motion * (scale / rows["sigma"])[:, None]
+    bounds = list(pair_starts) + [whitened.shape[0]]
+    information = np.array([weighted[start:stop].T @ weighted[start:stop] for start, stop in zip(bounds[:-1], bounds[1:])])  # (P, 6, 6)
+    gradient = np.add.reduceat(weighted * whitened[:, None], pair_starts, axis=0)  # (P, 6)
+    eigenvalues, eigenvectors = np.linalg.eigh(information)
+    floor = _EIGEN_FLOOR * np.maximum(eigenvalues[:, -1:], 1e-300)
+    informative = eigenvalues > floor
+    root = np.sqrt(np.where(informative, eigenvalues, 0.0))
+    projected = np.einsum("pab,pa->pb", eigenvectors, gradient)  # V^T g
+    compressed = np.where(informative, projected / np.where(informative, root, 1.0), 0.0)
+    remainder = max(float(whitened @ whitened) - float(np.sum(compressed * compressed)), 0.0)
+    residual = np.concatenate([compressed.ravel(), [np.sqrt(remainder)]])
+    if not jacobians:
+        return residual, None
+    square_root = root[:, :, None] * np.swapaxes(eigenvectors, 1, 2)  # (P, 6, 6): diag(sqrt w) V^T
+    blocks = [np.zeros((residual.shape[0], 6)) for _ in poses]
+    for index, ((index_i, index_j), (_, between_i)) in enumerate(zip(pair_keys, motions)):
+        selected = slice(6 * index, 6 * index + 6)
+        blocks[index_i][selected] = square_root[index] @ between_i
+        blocks[index_j][selected] = square_root[index]
+    return residual, blocks
+
+
+class StackedEpipolarFactor(gtsam.CustomFactor):
+    """Many :class:`EpipolarBlock` s in one vectorised factor: every camera (and camera pair) of every
+    keyframe pair that a new keyframe closes, on one or both bodies (module docstring residual).
+
+    GTSAM calls Python once per evaluation instead of once per block, numpy works on all rows at
+    once, and the factor hands GTSAM 6 rows per keyframe pair instead of one per correspondence
+    (:func:`stacked_epipolar_error`: the same Gauss-Newton system and the same robust cost as the N
+    Huber-weighted rows): the smoother's hot path (issue 5 timing). ``sigmas``: the Sampson sigma
+    (pixel sigma / focal) of each block, or one for all; ``huber_k`` in sigmas (None: Gaussian).
+    Keys: the distinct ``Pose3`` keys of the blocks, in order of first appearance. The noise model
+    is ``Unit`` (whitening and robust weighting happen inside).
+    """
+
+    def __init__(self, blocks: list[EpipolarBlock], sigmas: float | list[float], huber_k: float | None = 1.345) -> None:
+        if not blocks:
+            raise ValueError("StackedEpipolarFactor needs at least one block")
+        sigma_of_block = [float(sigmas)] * len(blocks) if np.isscalar(sigmas) else [float(sigma) for sigma in sigmas]
+        if len(sigma_of_block) != len(blocks) or not all(np.isfinite(sigma) and sigma > 0 for sigma in sigma_of_block):
+            raise ValueError(f"sigmas must be one positive number or one per block, got {sigmas!r}")
+        if huber_k is not None and not huber_k > 0:
+            raise ValueError(f"huber_k must be positive or None, got {huber_k!r}")
+        keys: list[int] = []
+        for block in blocks:
+            check_distinct_keys({"key_i": block.key_i, "key_j": block.key_j})
+            for key in (block.key_i, block.key_j):
+                if int(key) not in keys:
+                    keys.append(int(key))
+        pair_of_block = [(keys.index(int(block.key_i)), keys.index(int(block.key_j))) for block in blocks]
+        pairs = list(dict.fromkeys(pair_of_block))
+        order = sorted(range(len(blocks)), key=lambda index: pairs.index(pair_of_block[index]))
+        ordered = [blocks[index] for index in order]
+        counts = [len(block.correspondences) for block in ordered]
+        pair_of_row = np.repeat(np.array([pairs.index(pair_of_block[index]) for index in order], dtype=np.int64), counts)
+        pair_starts = np.searchsorted(pair_of_row, np.arange(len(pairs)))
+        rows = {
+            "bearings_i": _read_only(np.concatenate([block.correspondences.bearings_i for block in ordered])),
+            "bearings_j": _read_only(np.concatenate([block.correspondences.bearings_j for block in ordered])),
+            "centers_i": _read_only(np.repeat(np.array([block.correspondences.center_i for block in ordered]), counts, axis=0)),
+            "centers_j": _read_only(np.repeat(np.array([block.correspondences.center_j for block in ordered]), counts, axis=0)),
+            "sigma": _read_only(np.repeat(np.array([sigma_of_block[index] for index in order]), counts)),
+            "pair": pair_of_row,
+        }
+        pair_of_row.flags.writeable = False
+        pair_keys = np.array(pairs, dtype=np.int64)
+        dimension = 6 * len(pairs) + 1
+
+        def evaluate(*poses, jacobians=False, pair_keys=pair_keys, pair_starts=pair_starts, rows=rows, huber_k=huber_k):
+            return stacked_epipolar_error(list(poses), pair_keys, pair_starts, rows, huber_k, jacobians)
+
+        super().__init__(gtsam.noiseModel.Unit.Create(dimension), keys, make_error_function(keys, (POSE,) * len(keys), evaluate))
+        self.blocks = tuple(ordered)  # row order of the (uncompressed) correspondences
+        self.rows = int(sum(counts))
+
+    def __len__(self) -> int:
+        return self.rows

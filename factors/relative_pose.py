@@ -13,6 +13,7 @@ import gtsam
 import numpy as np
 
 from factors._checks import check_distinct_keys, check_noise_model, check_rigid_transform
+from factors._custom import POSE, make_error_function
 
 
 def relative_pose_error(measured: gtsam.Pose3, T_world_i: gtsam.Pose3, T_world_j: gtsam.Pose3, jacobians: bool = False) -> tuple[np.ndarray, list[np.ndarray] | None]:
@@ -37,10 +38,7 @@ class RelativePoseFactor(gtsam.CustomFactor):
         check_noise_model(noise_model, 6)
         measured_pose = gtsam.Pose3(check_rigid_transform(measured, "measured"))
 
-        def error(this: gtsam.CustomFactor, values: gtsam.Values, jacobians, measured_pose=measured_pose, keys=keys):
-            residual, blocks = relative_pose_error(measured_pose, values.atPose3(keys[0]), values.atPose3(keys[1]), jacobians is not None)
-            if jacobians is not None:
-                jacobians[0], jacobians[1] = blocks
-            return residual
+        def evaluate(T_world_i, T_world_j, jacobians=False, measured_pose=measured_pose):
+            return relative_pose_error(measured_pose, T_world_i, T_world_j, jacobians)
 
-        super().__init__(noise_model, keys, error)
+        super().__init__(noise_model, keys, make_error_function(keys, (POSE, POSE), evaluate))

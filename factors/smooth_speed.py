@@ -17,6 +17,9 @@ from functools import partial
 import gtsam
 import numpy as np
 
+from factors._checks import check_distinct_keys
+from factors._custom import POSE, make_error_function
+
 _MIN_CHORD_M = 1e-6
 
 
@@ -32,17 +35,16 @@ def _chord_and_gradients(T_from: gtsam.Pose3, T_to: gtsam.Pose3) -> tuple[float,
     return length, H_from, H_to
 
 
-def smooth_speed_error(dt_first: float, dt_second: float, this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list[np.ndarray] | None) -> np.ndarray:
-    """Error function of :func:`SmoothSpeedFactor` (module docstring)."""
-    keys = this.keys()
-    T_a, T_b, T_c = (values.atPose3(key) for key in keys)
+def smooth_speed_error(
+    T_a: gtsam.Pose3, T_b: gtsam.Pose3, T_c: gtsam.Pose3, dt_first: float, dt_second: float, jacobians: bool = False
+) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Residual (1,) of the module docstring (m/s) and, if ``jacobians``, three (1, 6) Jacobians."""
     chord_first, H_first_a, H_first_b = _chord_and_gradients(T_a, T_b)
     chord_second, H_second_b, H_second_c = _chord_and_gradients(T_b, T_c)
-    if jacobians is not None:
-        jacobians[0] = -H_first_a / dt_first
-        jacobians[1] = H_second_b / dt_second - H_first_b / dt_first
-        jacobians[2] = H_second_c / dt_second
-    return np.array([chord_second / dt_second - chord_first / dt_first])
+    residual = np.array([chord_second / dt_second - chord_first / dt_first])
+    if not jacobians:
+        return residual, None
+    return residual, [-H_first_a / dt_first, H_second_b / dt_second - H_first_b / dt_first, H_second_c / dt_second]
 
 
 def SmoothSpeedFactor(key_a: int, key_b: int, key_c: int, dt_first: float, dt_second: float, noise_model: gtsam.noiseModel.Base) -> gtsam.CustomFactor:
@@ -52,4 +54,6 @@ def SmoothSpeedFactor(key_a: int, key_b: int, key_c: int, dt_first: float, dt_se
         raise ValueError(f"SmoothSpeedFactor needs positive intervals, got {dt_first}, {dt_second}")
     if noise_model.dim() != 1:
         raise ValueError(f"SmoothSpeedFactor needs a 1-D noise model, got dimension {noise_model.dim()}")
-    return gtsam.CustomFactor(noise_model, [key_a, key_b, key_c], partial(smooth_speed_error, float(dt_first), float(dt_second)))
+    keys = check_distinct_keys({"key_a": key_a, "key_b": key_b, "key_c": key_c})
+    evaluate = partial(smooth_speed_error, dt_first=float(dt_first), dt_second=float(dt_second))
+    return gtsam.CustomFactor(noise_model, keys, make_error_function(keys, (POSE, POSE, POSE), evaluate))

@@ -4,7 +4,7 @@
     python scripts/evaluate.py OUT DATASET [--seconds-per-frame S] [--title TEXT]
 
 Reads OUT/tractor.tum, OUT/trailer.tum, OUT/hitch.csv (and OUT/timing.json if present) and
-DATASET/groundtruth.csv; writes OUT/metrics.json and OUT/evaluation.png and prints a table.
+DATASET/groundtruth.csv (a KITTI folder: poses.txt, compared in the left-camera frame); writes OUT/metrics.json and OUT/evaluation.png and prints a table.
 """
 from __future__ import annotations
 
@@ -13,14 +13,16 @@ import logging
 import sys
 from pathlib import Path
 
-from ampc_vo.errors import AmpcError
-from ampc_vo.evaluation import METRICS_FILE, PLOT_FILE, evaluate_output, load_groundtruth, plot_evaluation, write_metrics
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
+
+from ampc_vo.errors import AmpcError  # noqa: E402
+from ampc_vo.evaluation import METRICS_FILE, PLOT_FILE, evaluate_output, load_groundtruth, plot_evaluation, write_metrics  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("out", type=Path, help="odometry output folder (tractor.tum, trailer.tum, hitch.csv)")
-    parser.add_argument("dataset", type=Path, help="dataset folder with groundtruth.csv")
+    parser.add_argument("dataset", type=Path, help="dataset folder with groundtruth.csv, or a KITTI folder with poses.txt")
     parser.add_argument("--seconds-per-frame", type=float, default=None, help="override OUT/timing.json")
     parser.add_argument("--max-time-diff", type=float, default=0.01, help="timestamp association tolerance (s)")
     parser.add_argument("--title", default="", help="plot title")

@@ -16,14 +16,16 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-from evo.core import metrics
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
-from ampc_vo.baseline import StereoPnpConfig, stereo_pnp_odometry
-from ampc_vo.datasets.kitti import camera_poses, load_kitti
-from ampc_vo.errors import AmpcError
-from ampc_vo.evaluation import GroundTruth, _evo_trajectory, evaluate
-from ampc_vo.outputs import Trajectory, write_tum
+import numpy as np  # noqa: E402
+from evo.core import metrics  # noqa: E402
+
+from ampc_vo.baseline import StereoPnpConfig, stereo_pnp_odometry  # noqa: E402
+from ampc_vo.datasets.kitti import load_kitti  # noqa: E402
+from ampc_vo.errors import AmpcError  # noqa: E402
+from ampc_vo.evaluation import GroundTruth, _evo_trajectory, evaluate  # noqa: E402
+from ampc_vo.outputs import Trajectory, write_tum  # noqa: E402
 
 DEFAULT_CLIP = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-clip"
 
@@ -52,10 +54,10 @@ def main() -> int:
         result = stereo_pnp_odometry(dataset.rig, ((dataset.timestamps[k], dataset.images(k)) for k in range(len(dataset))), StereoPnpConfig())
         seconds = time.perf_counter() - start
         estimate = Trajectory(result.timestamps, result.T_world_body)
-        body = evaluate(dataset.truth, estimate, seconds_per_frame=seconds / len(dataset)).metrics
-        T_body_left = dataset.T_body_left_camera
-        camera_truth = GroundTruth(dataset.timestamps, camera_poses(dataset.T_world_tractor, T_body_left))
-        camera = evaluate(camera_truth, Trajectory(result.timestamps, camera_poses(result.T_world_body, T_body_left))).metrics
+        # dataset.truth compares in KITTI's left-camera frame (T_tractor_reference); the body frame too
+        body_truth = GroundTruth(dataset.timestamps, dataset.T_world_tractor)
+        body = evaluate(body_truth, estimate, seconds_per_frame=seconds / len(dataset)).metrics
+        camera = evaluate(dataset.truth, estimate).metrics
         rpe_m, rpe_deg = frame_to_frame_rpe(dataset.T_world_tractor, result.T_world_body, dataset.timestamps)
     except AmpcError as error:
         print(f"error: {error}", file=sys.stderr)

@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dataset", type=Path, nargs="?", default=None, help="dataset or KITTI folder (default: the built-in demo)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/demo for the demo; required otherwise)")
-    parser.add_argument("--config", type=Path, default=None, help="VO config YAML (default: built-in defaults = configs/vo/default.yaml)")
+    parser.add_argument("--config", type=Path, default=None, help="VO config YAML (default: configs/vo/kitti.yaml for a KITTI folder, else the built-in defaults = configs/vo/default.yaml)")
     parser.add_argument("--mode", choices=MODES, default=None, help="override the config's mode")
     parser.add_argument("--source", choices=SOURCES, default=None, help="override the config's source (images or bearings)")
     parser.add_argument("--rerun", type=Path, default=None, metavar="FILE.rrd", help="write a Rerun recording")
@@ -40,7 +40,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="simulate wheel odometry from the ground truth with this noise (m) and enable the wheel-speed factor")
     args = parser.parse_args(argv)
     try:
-        config = load_config(args.config)
+        from ampc_vo.sources import default_config_path
+
+        config = load_config(args.config if args.config is not None else default_config_path(args.dataset))
         if args.mode:
             config = config.with_mode(args.mode)
         if args.source:

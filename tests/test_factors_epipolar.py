@@ -6,7 +6,7 @@ import gc
 import gtsam
 import numpy as np
 import pytest
-from gtsam.utils.numerical_derivative import numericalDerivative21, numericalDerivative22
+from gtsam.utils.numerical_derivative import numericalDerivative11, numericalDerivative21, numericalDerivative22
 
 from ampc_vo.epipolar import gec_sampson, gec_sampson_jacobian
 from ampc_vo.errors import BearingError
@@ -225,3 +225,127 @@ def test_scalar_huber_downweights_only_the_outlier():
     np.testing.assert_allclose(weight[outlier], np.sqrt(1.345 / whitened[outlier]), rtol=1e-9)
     block_weight = np.linalg.norm(rows["block"], axis=1) / np.linalg.norm(rows["gaussian"], axis=1)
     assert np.all(block_weight < 0.5) and np.ptp(block_weight) < 1e-9  # every inlier loses weight too
+
+
+def _stacked_scenario(seed: int = 5):
+    """Three poses, four blocks: two cameras on (0, 2), one on (1, 2), one Plücker camera pair on (0, 1)."""
+    rng = np.random.default_rng(seed)
+    poses = [random_pose(rng, 0.3, 3.0) for _ in range(3)]
+    cameras = [_camera(0.0, 0.2, [2.5, 0.0, 2.5]), _camera(1.6, 0.1, [1.5, 1.2, 2.6])]
+    from factors import EpipolarBlock
+
+    blocks = []
+    for key_i, key_j, camera_i, camera_j, count in ((0, 2, 0, 0, 12), (0, 2, 1, 1, 9), (1, 2, 0, 0, 7), (0, 1, 0, 1, 5)):
+        T_i_j = poses[key_i].between(poses[key_j]).matrix()
+        bearings_i, bearings_j = _two_camera_bearings(rng, T_i_j, cameras[camera_i], cameras[camera_j], count)
+        bearings_j = bearings_j + rng.normal(0.0, 2e-3, bearings_j.shape)  # noisy: non-zero residuals
+        blocks.append(EpipolarBlock(key_i, key_j, body_correspondences(cameras[camera_i], bearings_i, bearings_j, cameras[camera_j])))
+    return poses, cameras, blocks
+
+
+def _hessian(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys) -> tuple[np.ndarray, np.ndarray]:
+    ordering = gtsam.Ordering()
+    for key in keys:
+        ordering.push_back(key)
+    return graph.linearize(values).hessian(ordering)
+
+
+def _graph(*factors) -> gtsam.NonlinearFactorGraph:
+    graph = gtsam.NonlinearFactorGraph()
+    for factor in factors:
+        graph.add(factor)
+    return graph
+
+
+def _per_block_graph(stacked, poses, huber_k):
+    graph = gtsam.NonlinearFactorGraph()
+    residuals = []
+    for block in stacked.blocks:
+        c = block.correspondences
+        residuals.append(epipolar_error(poses[block.key_i], poses[block.key_j], c)[0])
+        T_i, T_j = make_pose(np.eye(3), c.center_i), make_pose(np.eye(3), c.center_j)  # body-frame inputs
+        graph.add(GeneralizedEpipolarFactor(block.key_i, block.key_j, T_i, c.bearings_i, c.bearings_j, robust_noise(SIGMA, len(c), huber_k), T_j))
+    return graph, np.concatenate(residuals)
+
+
+def test_stacked_factor_has_the_linear_system_of_one_factor_per_block():
+    """Gaussian: the compressed factor (6 rows per keyframe pair + 1) gives exactly the error,
+    information matrix and gradient of one GeneralizedEpipolarFactor per block."""
+    from factors import StackedEpipolarFactor
+
+    poses, _, blocks = _stacked_scenario()
+    values = _values(*poses)
+    stacked = StackedEpipolarFactor(blocks, SIGMA, huber_k=None)
+    assert stacked.keys() == [0, 2, 1] and stacked.dim() == 6 * 3 + 1
+    assert len(stacked) == sum(len(block.correspondences) for block in blocks)
+    graph, residuals = _per_block_graph(stacked, poses, None)
+    assert stacked.error(values) == pytest.approx(0.5 * np.sum((residuals / SIGMA) ** 2), rel=1e-10)
+    information_stacked, gradient_stacked = _hessian(_graph(stacked), values, (0, 1, 2))
+    information_blocks, gradient_blocks = _hessian(graph, values, (0, 1, 2))
+    scale = np.max(np.abs(information_blocks))
+    np.testing.assert_allclose(information_stacked, information_blocks, atol=1e-9 * scale)
+    np.testing.assert_allclose(gradient_stacked, gradient_blocks, atol=1e-9 * np.max(np.abs(gradient_blocks)))
+
+
+def test_stacked_factor_robust_cost_is_the_sum_of_huber_losses_with_huber_gradient():
+    from factors import StackedEpipolarFactor
+
+    poses, _, blocks = _stacked_scenario(seed=11)
+    values = _values(*poses)
+    huber_k = 1.0
+    stacked = StackedEpipolarFactor(blocks, SIGMA, huber_k=huber_k)
+    graph, residuals = _per_block_graph(stacked, poses, huber_k)
+    whitened = np.abs(residuals / SIGMA)
+    assert np.any(whitened > huber_k) and np.any(whitened < huber_k)
+    huber = np.where(whitened <= huber_k, 0.5 * whitened**2, huber_k * whitened - 0.5 * huber_k**2)
+    assert stacked.error(values) == pytest.approx(np.sum(huber), rel=1e-10)
+    _, gradient_stacked = _hessian(_graph(stacked), values, (0, 1, 2))
+    _, gradient_blocks = _hessian(graph, values, (0, 1, 2))  # gtsam per-residual Huber: same gradient
+    np.testing.assert_allclose(gradient_stacked, gradient_blocks, atol=1e-9 * np.max(np.abs(gradient_blocks)))
+
+
+def test_stacked_factor_gradient_matches_numerical_derivative_of_its_error():
+    from factors import StackedEpipolarFactor
+
+    poses, _, blocks = _stacked_scenario(seed=9)
+    factor = StackedEpipolarFactor(blocks, [SIGMA, 2 * SIGMA, SIGMA, 1.5 * SIGMA], huber_k=1.345)
+    values = _values(*poses)
+    matrix, rhs = factor.linearize(values).jacobian()
+    gradient = -matrix.T @ rhs  # d error / d xi = J^T r (gtsam's rhs is -r)
+    for position, key in enumerate(factor.keys()):
+        def error_of(pose, key=key):
+            moved = gtsam.Values(values)
+            moved.update(key, pose)
+            return np.array([factor.error(moved)])
+
+        numeric = numericalDerivative11(error_of, poses[key], 1e-6)
+        assert_jacobian_close(gradient[None, 6 * position:6 * position + 6], numeric, rtol=1e-4)
+
+
+def test_stacked_factor_rejects_bad_input():
+    from factors import StackedEpipolarFactor
+
+    _, _, blocks = _stacked_scenario()
+    with pytest.raises(ValueError):
+        StackedEpipolarFactor([], SIGMA)
+    with pytest.raises(ValueError):
+        StackedEpipolarFactor(blocks, [SIGMA])
+    with pytest.raises(ValueError):
+        StackedEpipolarFactor(blocks, -1.0)
+
+
+def test_evaluation_cache_returns_identical_results_and_follows_value_changes():
+    from factors import StackedEpipolarFactor
+
+    poses, _, blocks = _stacked_scenario(seed=3)
+    factor = StackedEpipolarFactor(blocks, SIGMA)
+    values = _values(*poses)
+    first = factor.unwhitenedError(values)
+    np.testing.assert_array_equal(factor.unwhitenedError(values), first)
+    moved = gtsam.Values(values)
+    moved.update(2, poses[2].retract(np.full(6, 1e-3)))
+    changed = factor.unwhitenedError(moved)
+    assert np.max(np.abs(changed - first)) > 1e-6
+    fresh = StackedEpipolarFactor(blocks, SIGMA)
+    np.testing.assert_array_equal(fresh.unwhitenedError(moved), changed)
+    np.testing.assert_array_equal(factor.unwhitenedError(values), first)

@@ -59,9 +59,9 @@ def test_standstill_and_lost_tracks_are_survived(short_dataset, caplog):
     frames = list(result.measurements.frames(result.rig))
     stream = frames[:40]
     last = frames[39]
-    for index in range(1, 16):  # 1.5 s standstill
+    for index in range(1, 26):  # 2.5 s standstill (a keyframe at most every max_interval_s = 1 s)
         stream.append(FrameObservations(last.frame, last.timestamp + 0.1 * index, last.cameras))
-    stream.append(FrameObservations(last.frame + 1000, last.timestamp + 1.7, {}))
+    stream.append(FrameObservations(last.frame + 1000, last.timestamp + 2.7, {}))
     with caplog.at_level("WARNING"):
         for frame in stream:
             pipeline.process(frame)

@@ -11,6 +11,7 @@ ground below the left camera, which is 1.65 m high on the KITTI car). The camera
 ``R_body_camera = camera_rotation(0, 0)``; the right camera sits ``baseline`` metres along the left
 camera's x axis (to the right, i.e. body -y), from P1. Ground truth becomes ``T_world_tractor`` with
 the world frame = the body frame at the first frame (z up, as far as the car's camera is level).
+Evaluation compares poses in KITTI's own frame, the left camera (``GroundTruth.T_tractor_reference``).
 """
 from __future__ import annotations
 
@@ -187,10 +188,11 @@ class KittiDataset:
 
     @property
     def truth(self) -> GroundTruth | None:
-        """Ground truth for :func:`ampc_vo.evaluation.evaluate` (tractor only), or ``None``."""
+        """Ground truth for :func:`ampc_vo.evaluation.evaluate` (tractor only), or ``None``; poses are
+        compared in the frame of KITTI's ground truth, the left camera (``T_tractor_reference``)."""
         if self.T_world_tractor is None:
             return None
-        return GroundTruth(timestamps=self.timestamps.copy(), T_world_tractor=self.T_world_tractor.copy())
+        return GroundTruth(timestamps=self.timestamps.copy(), T_world_tractor=self.T_world_tractor.copy(), T_tractor_reference=self.T_body_left_camera.copy())
 
     def image_path(self, frame: int, camera: str) -> Path:
         if camera not in self.image_paths:
