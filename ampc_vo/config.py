@@ -99,8 +99,8 @@ class SmootherConfig:
     max_pair_gap: int = 1
     gate_px: float = 3.0
     max_window_tracks_per_camera: int = 150
-    lm_max_iterations: int = 10
-    lm_lambda_initial: float = 1e-3
+    lm_max_iterations: int | None = None  # None: 1 with output.publish lagged, 10 with latest (VoConfig.lm_iterations)
+    lm_lambda_initial: float = 1.0
     lm_relative_error_tol: float = 1e-4
     marginals: bool = True
 
@@ -115,7 +115,8 @@ class SmootherConfig:
             "lm_relative_error_tol",
         ):
             _positive(getattr(self, name), where + name)
-        _at_least(self.lm_max_iterations, 1, where + "lm_max_iterations")
+        if self.lm_max_iterations is not None:
+            _at_least(self.lm_max_iterations, 1, where + "lm_max_iterations")
         _at_least(self.max_window_tracks_per_camera, 2, where + "max_window_tracks_per_camera")
         _at_least(self.max_pair_gap, 1, where + "max_pair_gap")
 
@@ -211,6 +212,16 @@ class VoConfig:
             raise _error(where + "source", f"unknown source {self.source!r} (expected one of {SOURCES})")
         for section in ("keyframes", "ransac", "smoother", "scale", "output"):
             getattr(self, section).validate(f"{where}{section}.")
+
+    @property
+    def lm_iterations(self) -> int:
+        """LM iterations per smoother update: ``smoother.lm_max_iterations``, or by default 1 when
+        keyframes are published as they leave the window (each one is optimised at every update
+        while in it) and 10 when the newest keyframe is published at once (it must converge in one
+        update)."""
+        if self.smoother.lm_max_iterations is not None:
+            return self.smoother.lm_max_iterations
+        return 1 if self.output.publish == "lagged" else 10
 
     def with_mode(self, mode: str) -> "VoConfig":
         """A copy with another mode (validated)."""

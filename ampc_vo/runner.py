@@ -44,7 +44,8 @@ class SourceTimer:
                 step = next(iterator)
             except StopIteration:
                 return
-            self.seconds.append(time.perf_counter() - started)
+            # the step's own production time when it was produced in a worker thread, else the wait
+            self.seconds.append(step.seconds if step.seconds is not None else time.perf_counter() - started)
             on_step(step)
             yield step.observations
 

@@ -37,7 +37,9 @@ are terms of one :class:`factors.stacked.StackedFactor` (same error and linear s
 factor each); the smooth-speed prior keeps a factor of its own (it reaches back to k-2). Every
 Python factor caches its last evaluation (:mod:`factors._custom`), so LM's repeated evaluations
 at the same values and the marginals' linearisation cost no numpy work. LM stops after a
-relative error decrease below ``lm_relative_error_tol`` (1e-4: 2-3 steps per update instead of 3-4).
+relative error decrease below ``lm_relative_error_tol`` or after ``VoConfig.lm_iterations`` steps
+(one per update when keyframes are published as they leave the window; the first step is damped,
+``lm_lambda_initial`` 1.0, against overshooting along the weakly observable scale).
 
 Modes (issue 5): ``full``; ``tractor_only`` (no Y, A); ``no_trailer_constraint`` (no trailer NH);
 ``separate`` (no joint loop and no A: each body on its own cameras, θ afterwards from the two
@@ -238,7 +240,7 @@ class ArticulatedSmoother:
         self.joint = self.use_trailer and config.mode in ("full", "no_trailer_constraint")
         self.trailer_nonholonomic = self.use_trailer and config.mode in ("full", "separate")
         params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(config.smoother.lm_max_iterations)
+        params.setMaxIterations(config.lm_iterations)
         params.setlambdaInitial(config.smoother.lm_lambda_initial)
         params.setRelativeErrorTol(config.smoother.lm_relative_error_tol)
         self._params = params
@@ -664,7 +666,11 @@ class ArticulatedSmoother:
         if keyframe.init.tractor_status is MotionStatus.STANDSTILL or np.linalg.norm(T_tractor[:2, 3]) < self.config.keyframes.standstill_distance_m:
             hitch = previous
         else:
-            hitch_previous = np.arctan2(T_tractor[1, 3], T_tractor[0, 3]) - np.arctan2(T_trailer[1, 3], T_trailer[0, 3])
+            hitch_previous = float(wrap_angle(np.arctan2(T_tractor[1, 3], T_tractor[0, 3]) - np.arctan2(T_trailer[1, 3], T_trailer[0, 3])))
+            if abs(hitch_previous) > 0.5 * np.pi:
+                # beyond jack-knifing: the trailer's own translation came out reversed (its sign is
+                # weakly determined by its cameras alone); the hitch moved the other way
+                hitch_previous = float(wrap_angle(hitch_previous + np.pi))
             hitch = float(wrap_angle(hitch_previous + yaw_of(T_trailer) - yaw_of(T_tractor)))
         self._separate_hitch[k] = hitch
         for old in [index for index in self._separate_hitch if index < min(self._window, default=k) - 2]:

@@ -21,6 +21,7 @@ the folder cannot provide is a :class:`DatasetError` that says what is missing.
 from __future__ import annotations
 
 import logging
+import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,6 +48,7 @@ class FrameStep:
     observations: FrameObservations
     images: dict[str, np.ndarray | None] | None = None
     frontend: FrontendResult | None = None
+    seconds: float | None = None  # time spent producing it (decode + frontend), for the timing breakdown
 
 
 @dataclass
@@ -70,20 +72,36 @@ class Sequence:
         return int(self.timestamps.shape[0])
 
 
+def _pipelined(frame_count: int, produce: Callable[[int], FrameStep], threads: int) -> Iterator[FrameStep]:
+    """``produce(frame)`` for every frame in order; with ``threads`` > 1 the next frame is produced
+    (decoded and tracked: OpenCV releases the GIL) in a worker thread while the caller runs the
+    backend on this one. The frontend's state is only touched by that one worker, in frame order."""
+    if threads <= 1:
+        for frame in range(frame_count):
+            yield produce(frame)
+        return
+    with ThreadPoolExecutor(max_workers=1) as worker:
+        upcoming = worker.submit(produce, 0) if frame_count else None
+        for frame in range(frame_count):
+            step = upcoming.result()
+            upcoming = worker.submit(produce, frame + 1) if frame + 1 < frame_count else None
+            yield step
+
+
 def image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs: tuple[tuple[str, str], ...] = ()) -> Iterator[FrameStep]:
     """The image frontend over every frame of ``dataset`` (``camera_names``, ``timestamps``,
     ``load_image``); a missing or corrupt image is logged and that camera re-initialises. With
-    ``config.threads`` > 1 the next frame's images are decoded while this one is processed."""
-    frame_count = len(dataset)
-    with MultiCameraFrontend(rig, config.frontend, stereo_pairs=stereo_pairs, stereo_config=config.stereo, threads=config.threads) as frontend, \
-            ThreadPoolExecutor(max_workers=1) as loader:
-        upcoming = loader.submit(load_frame_images, dataset, 0) if frame_count and config.threads > 1 else None
-        for frame in range(frame_count):
-            images = upcoming.result() if upcoming is not None else load_frame_images(dataset, frame)
-            if upcoming is not None and frame + 1 < frame_count:
-                upcoming = loader.submit(load_frame_images, dataset, frame + 1)
+    ``config.threads`` > 1 cameras are tracked in parallel and the next frame is decoded and
+    tracked while the backend works on this one (:func:`_pipelined`)."""
+    with MultiCameraFrontend(rig, config.frontend, stereo_pairs=stereo_pairs, stereo_config=config.stereo, threads=config.threads) as frontend:
+
+        def produce(frame: int) -> FrameStep:
+            started = time.perf_counter()
+            images = load_frame_images(dataset, frame)
             result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), images)
-            yield FrameStep(result.observations, images, result)
+            return FrameStep(result.observations, images, result, time.perf_counter() - started)
+
+        yield from _pipelined(len(dataset), produce, config.threads)
 
 
 def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs: tuple[tuple[str, str], ...]) -> Iterator[FrameStep]:
@@ -95,20 +113,20 @@ def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs
     and :mod:`ampc_vo.stereo_scale` use. About half the tracking cost of tracking both cameras."""
     seconds = {second for _, second in stereo_pairs}
     tracked = Rig(rig.bodies, tuple(camera for camera in rig.cameras if camera.name not in seconds))
-    frame_count = len(dataset)
-    with MultiCameraFrontend(tracked, config.frontend, threads=config.threads) as frontend, ThreadPoolExecutor(max_workers=1) as loader:
-        upcoming = loader.submit(load_frame_images, dataset, 0) if frame_count and config.threads > 1 else None
-        for frame in range(frame_count):
-            images = upcoming.result() if upcoming is not None else load_frame_images(dataset, frame)
-            if upcoming is not None and frame + 1 < frame_count:
-                upcoming = loader.submit(load_frame_images, dataset, frame + 1)
+    with MultiCameraFrontend(tracked, config.frontend, threads=config.threads) as frontend:
+
+        def produce(frame: int) -> FrameStep:
+            started = time.perf_counter()
+            images = load_frame_images(dataset, frame)
             result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), {name: images.get(name) for name in frontend.trackers})
             stereo = {}
             for first, second in stereo_pairs:
                 stereo[(first, second)] = match_stereo_image(frontend.trackers[first], images.get(second), result.observations.cameras[first],
                                                              rig.camera(second), config.stereo)
             observations = observations_with_stereo(result.observations, stereo)
-            yield FrameStep(observations, images, FrontendResult(observations, result.reports, stereo))
+            return FrameStep(observations, images, FrontendResult(observations, result.reports, stereo), time.perf_counter() - started)
+
+        yield from _pipelined(len(dataset), produce, config.threads)
 
 
 def _bearing_steps(measurements: object, rig: Rig) -> Iterator[FrameStep]:
