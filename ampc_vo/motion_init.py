@@ -179,7 +179,14 @@ class MotionInitializer:
             T_i_j = np.eye(4)
         elif status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and estimate.T_i_j is not None:
             T_i_j = estimate.T_i_j
-            if status is MotionStatus.OK and prediction_sigma is not None:
+            if status is MotionStatus.OK and prediction_sigma is not None and estimate.chord < 0.0 < predicted_chord - 2.0 * prediction_sigma:
+                # a reversing chord while the truck confidently drives forward: the spurious sign of
+                # the 2-point scale (weak on near-straight motion, DESIGN 2.3); keep yaw, predict the chord
+                logger.debug("frame %d: 2-point chord %.2f m against the predicted %.2f m forward: chord treated as unobservable",
+                             second.frame, estimate.chord, predicted_chord)
+                status = MotionStatus.SCALE_UNOBSERVABLE
+                T_i_j = make_pose(*ackermann_motion(estimate.yaw_change, predicted_chord, self.rig.axle_x("tractor")))
+            elif status is MotionStatus.OK and prediction_sigma is not None:
                 T_i_j = self._fuse_chord(estimate, predicted_chord, prediction_sigma)
         else:
             status = MotionStatus.TOO_FEW_TRACKS
@@ -255,7 +262,12 @@ class MotionInitializer:
                     camera_pairs(self.rig, "tractor", first, second), trailer_pairs, seed, estimate,
                     self.rig.axle_x("tractor"), trailer_axle_x, self._tractor_config, trailer_nonholonomic=self.config.mode == "full",
                 )
-                if joint.ok and np.all(np.isfinite(joint.T_i_j)):
+                refined_chord = _chord_of(joint.T_i_j, self.rig.axle_x("tractor")) if joint.ok and np.all(np.isfinite(joint.T_i_j)) else float("nan")
+                if joint.ok and not (abs(seed.chord) > 1e-9 and 0.5 <= refined_chord / seed.chord <= 2.0):
+                    # near-straight with a small hitch angle the trailer's scale is as weak as the
+                    # tractor's (DESIGN 2.3): a reversed or far-off chord is a spurious minimum
+                    logger.debug("frame %d: joint refinement chord %.2f m against %.2f m: kept the tractor estimate", second.frame, refined_chord, seed.chord)
+                elif joint.ok:
                     status = MotionStatus.OK if tractor.status is MotionStatus.SCALE_UNOBSERVABLE else tractor.status
                     tractor = TractorMotion(joint.T_i_j, status, tractor.estimate, tractor.shared_tracks, tractor.scale_chord)
                     estimate = estimate_hitch_angles(
