@@ -330,9 +330,17 @@ def load_groundtruth(dataset_dir: str | Path) -> GroundTruth:
     if is_kitti_folder(dataset_dir):
         return load_kitti_truth(dataset_dir)
 
-    dataset = read_dataset(dataset_dir, load_measurements_file=False)
-    truth = dataset.groundtruth
+    truth = groundtruth_of(read_dataset(dataset_dir, load_measurements_file=False))
     if truth is None:
         raise DatasetError(f"{dataset_dir}: dataset has no groundtruth.csv")
+    return truth
+
+
+def groundtruth_of(dataset: object) -> GroundTruth | None:
+    """The :class:`GroundTruth` of an opened dataset folder (``datasets.folder.Dataset``), ``None``
+    without ``groundtruth.csv``; the trailer ATE is measured at the trailer axle."""
+    trajectory = dataset.groundtruth
+    if trajectory is None:
+        return None
     axle_x = dataset.rig.axle_x("trailer") if dataset.rig.has_trailer else 0.0
-    return GroundTruth(truth.timestamps, truth.T_world_tractor, truth.T_world_trailer, truth.hitch_angle, axle_x)
+    return GroundTruth(trajectory.timestamps, trajectory.T_world_tractor, trajectory.T_world_trailer, trajectory.hitch_angle, axle_x)

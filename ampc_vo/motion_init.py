@@ -179,14 +179,7 @@ class MotionInitializer:
             T_i_j = np.eye(4)
         elif status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and estimate.T_i_j is not None:
             T_i_j = estimate.T_i_j
-            if status is MotionStatus.OK and prediction_sigma is not None and estimate.chord < 0.0 < predicted_chord - 2.0 * prediction_sigma:
-                # a reversing chord while the truck confidently drives forward: the spurious sign of
-                # the 2-point scale (weak on near-straight motion, DESIGN 2.3); keep yaw, predict the chord
-                logger.debug("frame %d: 2-point chord %.2f m against the predicted %.2f m forward: chord treated as unobservable",
-                             second.frame, estimate.chord, predicted_chord)
-                status = MotionStatus.SCALE_UNOBSERVABLE
-                T_i_j = make_pose(*ackermann_motion(estimate.yaw_change, predicted_chord, self.rig.axle_x("tractor")))
-            elif status is MotionStatus.OK and prediction_sigma is not None:
+            if status is MotionStatus.OK and prediction_sigma is not None:
                 T_i_j = self._fuse_chord(estimate, predicted_chord, prediction_sigma)
         else:
             status = MotionStatus.TOO_FEW_TRACKS
@@ -235,12 +228,13 @@ class MotionInitializer:
     def keyframe(self, first: FrameObservations, second: FrameObservations, tractor: TractorMotion,
                  hitch_prior: float | None, predicted_trailer: np.ndarray | None = None) -> MotionInit:
         """The :class:`MotionInit` of a new keyframe given its tractor motion (see :meth:`tractor`)."""
+        tractor_pairs = camera_pairs(self.rig, "tractor", first, second)
         inliers = {}
         if tractor.status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE, MotionStatus.STANDSTILL):
-            inliers = _inlier_tracks(camera_pairs(self.rig, "tractor", first, second), tractor.estimate.inlier_masks)
+            inliers = _inlier_tracks(tractor_pairs, tractor.estimate.inlier_masks)
         if not self.use_trailer:
-            return self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=inliers, scale_chord=tractor.scale_chord), first, second,
-                                           tractor.estimate.yaw_sigma)
+            return self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=inliers, scale_chord=tractor.scale_chord), tractor_pairs,
+                                           first, second, tractor.estimate.yaw_sigma)
         hitch_prev = hitch = None
         trailer_status = MotionStatus.TOO_FEW_TRACKS
         trailer_pairs = camera_pairs(self.rig, "trailer", first, second)
@@ -259,7 +253,7 @@ class MotionInitializer:
                 # when the hitch angle is not zero: refine from the motion actually used
                 seed = dataclasses.replace(tractor.estimate, yaw_change=tractor.yaw_change, chord=_chord_of(tractor.T_i_j, self.rig.axle_x("tractor")), T_i_j=tractor.T_i_j)
                 joint = refine_joint(
-                    camera_pairs(self.rig, "tractor", first, second), trailer_pairs, seed, estimate,
+                    tractor_pairs, trailer_pairs, seed, estimate,
                     self.rig.axle_x("tractor"), trailer_axle_x, self._tractor_config, trailer_nonholonomic=self.config.mode == "full",
                 )
                 refined_chord = _chord_of(joint.T_i_j, self.rig.axle_x("tractor")) if joint.ok and np.all(np.isfinite(joint.T_i_j)) else float("nan")
@@ -295,7 +289,7 @@ class MotionInitializer:
                     trailer_status = MotionStatus.TOO_FEW_TRACKS if trailer_status is not MotionStatus.STANDSTILL else trailer_status
                     T_trailer = predicted
         return self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer, inlier_tracks=inliers,
-                                                  scale_chord=tractor.scale_chord), first, second, tractor.estimate.yaw_sigma)
+                                                  scale_chord=tractor.scale_chord), tractor_pairs, first, second, tractor.estimate.yaw_sigma)
 
     def measured_chord(self, first: FrameObservations, second: FrameObservations, tractor: TractorMotion) -> tuple[float, float] | None:
         """The metric tractor axle chord ``(chord m, sigma m)`` of a motion measured by the ground
@@ -303,21 +297,22 @@ class MotionInitializer:
         bootstrap uses on a straight start (DESIGN 2.3), where the 2-point chord is unobservable."""
         if tractor.status not in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE):
             return None
-        inliers = _inlier_tracks(camera_pairs(self.rig, "tractor", first, second), tractor.estimate.inlier_masks)
-        init = MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=inliers, scale_chord=tractor.scale_chord)
-        return self._with_ground_scale(init, first, second, tractor.estimate.yaw_sigma).scale_chord
+        pairs = camera_pairs(self.rig, "tractor", first, second)
+        init = MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=_inlier_tracks(pairs, tractor.estimate.inlier_masks), scale_chord=tractor.scale_chord)
+        return self._with_ground_scale(init, pairs, first, second, tractor.estimate.yaw_sigma).scale_chord
 
-    def _with_ground_scale(self, init: MotionInit, first: FrameObservations, second: FrameObservations, yaw_sigma: float) -> MotionInit:
+    def _with_ground_scale(self, init: MotionInit, pairs: list[CameraPairs], first: FrameObservations, second: FrameObservations, yaw_sigma: float) -> MotionInit:
         """``init`` with ``scale_chord`` from the ground plane (``scale.ground_plane``): the metric
         chord of the tractor axle measured from road points of the tractor cameras
         (:mod:`ampc_vo.ground_scale`), given the final tractor motion's rotation and direction and
-        the RANSAC's ``yaw_sigma`` (radians; a side camera's chord is sensitive to yaw errors).
+        the RANSAC's ``yaw_sigma`` (radians; a side camera's chord is sensitive to yaw errors);
+        ``pairs``: the tractor cameras' correspondences of ``first`` and ``second``.
         An existing ``scale_chord`` (stereo) is fused with it (inverse variance); a scale-unobservable
         motion is re-initialised with the measured chord."""
         if not self.config.scale.ground_plane or init.tractor_status not in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE):
             return init
         correspondences = []
-        for pair in camera_pairs(self.rig, "tractor", first, second):
+        for pair in pairs:
             inlier_ids = init.inlier_tracks.get(pair.camera.name)
             keep = np.isin(pair.track_ids, inlier_ids) if inlier_ids is not None else np.ones(len(pair), bool)
             correspondences.append((pair.camera, pair.bearings_i[keep], pair.bearings_j[keep]))

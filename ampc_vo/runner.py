@@ -10,19 +10,17 @@ go into an ``.rrd`` file.
 """
 from __future__ import annotations
 
-import json
 import logging
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator
 
 import numpy as np
 
-from ampc_vo.config import VoConfig, save_config
+from ampc_vo.config import VoConfig
 from ampc_vo.observations import FrameObservations
-from ampc_vo.outputs import OutputWriter
-from ampc_vo.pipeline import TIMING_FILE, OdometryPipeline, RunSummary
+from ampc_vo.pipeline import RunSummary, run_on_frames
 from ampc_vo.smoother import KeyframeEstimate
 from ampc_vo.sources import FrameStep, Sequence
 
@@ -66,10 +64,6 @@ def _truth_at(sequence: Sequence, frame: int, timestamp: float) -> tuple[np.ndar
 def run_sequence(sequence: Sequence, config: VoConfig, out_dir: str | Path, rerun_path: str | Path | None = None,
                  progress: bool | None = None, wheel_odometry: Callable[[float, float], float] | None = None) -> tuple[RunSummary, list[KeyframeEstimate]]:
     """Run the pipeline over ``sequence`` writing into ``out_dir`` (module docstring)."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    save_config(config, out_dir / "config.yaml")
-    with_trailer = sequence.rig.has_trailer and config.mode != "tractor_only"
     timer = SourceTimer([])
     recorder = None
     if rerun_path is not None:
@@ -96,16 +90,8 @@ def run_sequence(sequence: Sequence, config: VoConfig, out_dir: str | Path, reru
                                hitch_angle=estimate.hitch_angle, hitch_sigma=estimate.hitch_sigma)
 
     try:
-        with OutputWriter(out_dir, with_trailer=with_trailer) as writer:
-            pipeline = OdometryPipeline(sequence.rig, config, writer, wheel_odometry=wheel_odometry)
-            frames = timer.wrap(sequence.steps(), log_step)
-            summary = pipeline.run(frames, len(sequence), progress, on_frame=log_published)
+        return run_on_frames(sequence.rig, config, timer.wrap(sequence.steps(), log_step), out_dir, len(sequence), progress,
+                             wheel_odometry, on_frame=log_published, source_seconds=timer.seconds)
     finally:
         if recorder is not None:
             recorder.close()
-    if timer.seconds:
-        breakdown = {"frontend": float(np.median(timer.seconds) * 1e3), **summary.backend_ms_breakdown}
-        summary = replace(summary, backend_ms_breakdown=breakdown)
-    if config.output.write_timing:
-        (out_dir / TIMING_FILE).write_text(json.dumps(asdict(summary), indent=2) + "\n", encoding="utf-8")
-    return summary, pipeline.estimates

@@ -367,30 +367,10 @@ class ArticulatedSmoother:
         self._window = {k: keyframe}
 
     def flush(self) -> list[KeyframeEstimate]:
-        """End of the stream: with ``output.publish: lagged`` the keyframes still in the window,
-        after the window was optimised to convergence (with one LM step per update the newest
-        keyframes have had few steps; :meth:`_converge`)."""
+        """End of the stream: with ``output.publish: lagged`` the keyframes still in the window."""
         if self.config.output.publish != "lagged":
             return []
-        self._converge()
         return [self._publish(self._window[index], self._sigma_of(index)) for index in sorted(self._window)]
-
-    def _converge(self, max_updates: int = 10) -> None:
-        """Re-optimise the current window without new factors until the error stops decreasing."""
-        if not self._window or self.config.lm_iterations >= max_updates:
-            return
-        previous_error = None
-        try:
-            for _ in range(max_updates):
-                self._smoother.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
-                error = self._smoother.getFactors().error(self._smoother.calculateEstimate())
-                if previous_error is not None and previous_error - error <= self.config.smoother.lm_relative_error_tol * previous_error:
-                    break
-                previous_error = error
-        except RuntimeError as failure:  # keep the last good estimate
-            logger.warning("final optimisation of the window stopped: %s", str(failure).splitlines()[0])
-        self._estimate = self._smoother.calculateEstimate()
-        self._marginals = self._compute_marginals(max(self._window))
 
     def estimate(self, index: int) -> KeyframeEstimate:
         """Current (smoothed) estimate of a keyframe still in the window."""

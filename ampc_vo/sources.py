@@ -32,7 +32,7 @@ import numpy as np
 from ampc_vo.config import VoConfig
 from ampc_vo.datasets.frame_images import load_frame_images
 from ampc_vo.errors import DatasetError
-from ampc_vo.evaluation import GroundTruth
+from ampc_vo.evaluation import GroundTruth, groundtruth_of
 from ampc_vo.frontend import FrontendResult, MultiCameraFrontend, match_stereo_image, observations_with_stereo
 from ampc_vo.observations import FrameObservations
 from ampc_vo.rig import Rig
@@ -164,7 +164,7 @@ def open_sequence(path: str | Path, config: VoConfig) -> Sequence:
     from ampc_vo.datasets.folder import read_dataset
 
     dataset = read_dataset(path, load_measurements_file=config.source != "images", allow_missing_images=config.source != "bearings")
-    truth = _folder_truth(dataset)
+    truth = groundtruth_of(dataset)
     use_images = config.source == "images" or (config.source == "auto" and dataset.has_images)
     if use_images:
         if not dataset.has_images:
@@ -176,14 +176,6 @@ def open_sequence(path: str | Path, config: VoConfig) -> Sequence:
     measurements = dataset.measurements
     logger.info("%s: %d frames of simulated bearing measurements", path, measurements.frame_count)
     return Sequence(path, "bearings", dataset.rig, dataset.timestamps, truth, lambda: _bearing_steps(measurements, dataset.rig))
-
-
-def _folder_truth(dataset: object) -> GroundTruth | None:
-    trajectory = dataset.groundtruth
-    if trajectory is None:
-        return None
-    axle_x = dataset.rig.axle_x("trailer") if dataset.rig.has_trailer else 0.0
-    return GroundTruth(trajectory.timestamps, trajectory.T_world_tractor, trajectory.T_world_trailer, trajectory.hitch_angle, axle_x)
 
 
 def _open_kitti(path: Path, config: VoConfig) -> Sequence:
