@@ -24,6 +24,8 @@ PUBLISH_POLICIES = ("latest", "lagged")
 # where the frames' observations come from (issue 7): images through the frontend when the dataset
 # has them, else the simulator's bearing measurements (``auto``); or forced
 SOURCES = ("auto", "images", "bearings")
+# where an image source produces the next frame while the backend works (ampc_vo.sources)
+FRONTEND_WORKERS = ("process", "thread", "none")
 
 
 @dataclass(frozen=True)
@@ -195,7 +197,10 @@ class VoConfig:
 
     mode: str = "full"
     source: str = "auto"
-    threads: int = 2   # image sources: cameras tracked and the next frame decoded in parallel (OpenCV releases the GIL)
+    threads: int = 2   # image sources: cameras tracked in parallel threads (OpenCV releases the GIL)
+    # image sources: where the next frame is decoded and tracked while the backend works on this one:
+    # process (its own process: no GIL shared with the backend), thread (a worker thread), none (in turn)
+    frontend_worker: str = "process"
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     ransac: RansacConfig = field(default_factory=RansacConfig)
     smoother: SmootherConfig = field(default_factory=SmootherConfig)
@@ -208,6 +213,8 @@ class VoConfig:
         if self.mode not in MODES:
             raise _error(where + "mode", f"unknown mode {self.mode!r} (expected one of {MODES})")
         _at_least(self.threads, 1, where + "threads")
+        if self.frontend_worker not in FRONTEND_WORKERS:
+            raise _error(where + "frontend_worker", f"unknown frontend_worker {self.frontend_worker!r} (expected one of {FRONTEND_WORKERS})")
         if self.source not in SOURCES:
             raise _error(where + "source", f"unknown source {self.source!r} (expected one of {SOURCES})")
         for section in ("keyframes", "ransac", "smoother", "scale", "output"):

@@ -16,3 +16,7 @@ class DatasetError(AmpcError):
 
 class BearingError(AmpcError, ValueError):
     """Bearing vectors of the wrong shape, with NaN, or of zero length."""
+
+
+class SourceError(AmpcError):
+    """A measurement source failed while running (e.g. its worker process died)."""

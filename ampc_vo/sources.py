@@ -20,6 +20,7 @@ the folder cannot provide is a :class:`DatasetError` that says what is missing.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -36,6 +37,7 @@ from ampc_vo.evaluation import GroundTruth, groundtruth_of
 from ampc_vo.frontend import FrontendResult, MultiCameraFrontend, match_stereo_image, observations_with_stereo
 from ampc_vo.observations import FrameObservations
 from ampc_vo.rig import Rig
+from ampc_vo.worker import stream_in_process
 
 logger = logging.getLogger(__name__)
 
@@ -72,11 +74,11 @@ class Sequence:
         return int(self.timestamps.shape[0])
 
 
-def _pipelined(frame_count: int, produce: Callable[[int], FrameStep], threads: int) -> Iterator[FrameStep]:
-    """``produce(frame)`` for every frame in order; with ``threads`` > 1 the next frame is produced
+def _pipelined(frame_count: int, produce: Callable[[int], FrameStep], in_thread: bool) -> Iterator[FrameStep]:
+    """``produce(frame)`` for every frame in order; with ``in_thread`` the next frame is produced
     (decoded and tracked: OpenCV releases the GIL) in a worker thread while the caller runs the
     backend on this one. The frontend's state is only touched by that one worker, in frame order."""
-    if threads <= 1:
+    if not in_thread:
         for frame in range(frame_count):
             yield produce(frame)
         return
@@ -88,11 +90,25 @@ def _pipelined(frame_count: int, produce: Callable[[int], FrameStep], threads: i
             yield step
 
 
+def _frontend_stream(make_steps: Callable[..., Iterator[FrameStep]], dataset: object, rig: Rig, config: VoConfig,
+                     *more: object) -> Iterator[FrameStep]:
+    """``make_steps(dataset, rig, config, *more)``, in a worker process when
+    ``config.frontend_worker`` is ``process`` (:func:`ampc_vo.worker.stream_in_process`: the
+    frontend then shares no GIL with the backend). The simulated bearings a dataset may carry
+    stay here (the frontend does not need them)."""
+    if config.frontend_worker != "process":
+        return make_steps(dataset, rig, config, *more)
+    if dataclasses.is_dataclass(dataset) and getattr(dataset, "measurements", None) is not None:
+        dataset = dataclasses.replace(dataset, measurements=None)
+    return stream_in_process(make_steps, (dataset, rig, dataclasses.replace(config, frontend_worker="none"), *more))
+
+
 def image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs: tuple[tuple[str, str], ...] = ()) -> Iterator[FrameStep]:
     """The image frontend over every frame of ``dataset`` (``camera_names``, ``timestamps``,
     ``load_image``); a missing or corrupt image is logged and that camera re-initialises. With
-    ``config.threads`` > 1 cameras are tracked in parallel and the next frame is decoded and
-    tracked while the backend works on this one (:func:`_pipelined`)."""
+    ``config.threads`` > 1 cameras are tracked in parallel; with ``config.frontend_worker`` thread
+    the next frame is decoded and tracked while the backend works on this one (:func:`_pipelined`;
+    for ``process`` see :func:`_frontend_stream`)."""
     with MultiCameraFrontend(rig, config.frontend, stereo_pairs=stereo_pairs, stereo_config=config.stereo, threads=config.threads) as frontend:
 
         def produce(frame: int) -> FrameStep:
@@ -101,7 +117,7 @@ def image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs: tuple
             result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), images)
             return FrameStep(result.observations, images, result, time.perf_counter() - started)
 
-        yield from _pipelined(len(dataset), produce, config.threads)
+        yield from _pipelined(len(dataset), produce, config.frontend_worker == "thread")
 
 
 def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs: tuple[tuple[str, str], ...]) -> Iterator[FrameStep]:
@@ -126,7 +142,7 @@ def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs
             observations = observations_with_stereo(result.observations, stereo)
             return FrameStep(observations, images, FrontendResult(observations, result.reports, stereo), time.perf_counter() - started)
 
-        yield from _pipelined(len(dataset), produce, config.threads)
+        yield from _pipelined(len(dataset), produce, config.frontend_worker == "thread")
 
 
 def _bearing_steps(measurements: object, rig: Rig) -> Iterator[FrameStep]:
@@ -170,7 +186,7 @@ def open_sequence(path: str | Path, config: VoConfig) -> Sequence:
         if not dataset.has_images:
             raise DatasetError(f"{path}: source 'images' asked for, but frames.csv lists no images for some camera")
         logger.info("%s: %d frames of images from cameras %s (image frontend)", path, len(dataset), ", ".join(dataset.camera_names))
-        return Sequence(path, "images", dataset.rig, dataset.timestamps, truth, lambda: image_steps(dataset, dataset.rig, config))
+        return Sequence(path, "images", dataset.rig, dataset.timestamps, truth, lambda: _frontend_stream(image_steps, dataset, dataset.rig, config))
     if dataset.measurements is None:
         raise DatasetError(f"{path}: no images and no measurements.npz: nothing to run on")
     measurements = dataset.measurements
@@ -186,5 +202,5 @@ def _open_kitti(path: Path, config: VoConfig) -> Sequence:
     dataset = load_kitti(path)
     logger.info("%s: KITTI folder, %d stereo frames", path, len(dataset))
     return Sequence(path, "kitti", dataset.rig, dataset.timestamps, dataset.truth,
-                    lambda: stereo_image_steps(dataset, dataset.rig, config, stereo_pairs=((LEFT, RIGHT),)),
+                    lambda: _frontend_stream(stereo_image_steps, dataset, dataset.rig, config, ((LEFT, RIGHT),)),
                     T_body_reference=dataset.T_body_left_camera)

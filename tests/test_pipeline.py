@@ -108,3 +108,39 @@ def test_scripts_run_and_evaluate(short_dataset, tmp_path):
     missing = subprocess.run([sys.executable, str(ROOT / "scripts" / "run_odometry.py"), str(tmp_path / "nope"), "--out", str(tmp_path / "o")],
                              capture_output=True, text=True, env=env, timeout=300)
     assert missing.returncode == 2 and "error:" in missing.stderr
+
+
+class _InterruptedSmoother:
+    """Stands in for the GTSAM smoother: its next update is interrupted (Ctrl-C inside an error function)."""
+
+    def __init__(self, real):
+        self._real = real
+
+    def update(self, *args):
+        raise KeyboardInterrupt
+
+    def __getattr__(self, name):
+        return getattr(self._real, name)
+
+
+def test_ctrl_c_inside_a_smoother_update_keeps_every_estimated_keyframe(short_dataset, tmp_path, caplog):
+    """Interrupted mid-update: the keyframes estimated until then are all written (the one being
+    added has no estimate yet and is left out), and the salvage itself does not fail."""
+    _, result = short_dataset
+    config = config_from_dict({"output": {"progress": False}})
+    pipeline = OdometryPipeline(result.rig, config)
+    frames = list(result.measurements.frames(result.rig))
+
+    def stream():
+        for frame in frames:
+            if pipeline.smoother.keyframe_count == 15:
+                pipeline.smoother._smoother = _InterruptedSmoother(pipeline.smoother._smoother)
+            yield frame
+
+    with caplog.at_level("ERROR"), pytest.raises(KeyboardInterrupt):
+        pipeline.run(stream(), progress=False)
+    assert not [record for record in caplog.records if "could not publish" in record.message]
+    assert [estimate.index for estimate in pipeline.estimates] == list(range(15))
+    truth = result.trajectory
+    last = pipeline.estimates[-1]
+    assert np.linalg.norm(last.T_world_tractor[:3, 3] - truth.T_world_tractor[np.searchsorted(truth.timestamps, last.timestamp), :3, 3]) < 1.0

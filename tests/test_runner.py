@@ -2,6 +2,7 @@
 recording, and bad input (missing, corrupt, black images, a short camera folder, a sudden jump)."""
 from __future__ import annotations
 
+import itertools
 import shutil
 import subprocess
 import sys
@@ -142,3 +143,22 @@ def test_frame_step_carries_images_and_frontend_details(rendered):
     assert second.frontend is not None
     tracked = sum(len(observations) for observations in second.observations.cameras.values())
     assert tracked >= 400
+
+
+def test_frontend_in_its_own_process_gives_the_inline_observations(rendered):
+    """frontend_worker process (the default) and none track the same features to the same bearings."""
+    frames = 6
+    inline = list(itertools.islice(open_sequence(rendered, VoConfig(frontend_worker="none")).steps(), frames))
+    stream = open_sequence(rendered, VoConfig(frontend_worker="process")).steps()
+    in_process = list(itertools.islice(stream, frames))
+    stream.close()
+    assert len(inline) == len(in_process) == frames
+    for ours, theirs in zip(inline, in_process):
+        assert ours.observations.frame == theirs.observations.frame
+        assert set(theirs.observations.cameras) == {"front", "left", "rear", "right"}
+        for name, camera in ours.observations.cameras.items():
+            other = theirs.observations.cameras[name]
+            assert len(camera) > 50
+            np.testing.assert_array_equal(camera.track_ids, other.track_ids)
+            np.testing.assert_array_equal(camera.bearings, other.bearings)
+        assert theirs.images is not None and theirs.frontend is not None and theirs.seconds > 0

@@ -1,0 +1,107 @@
+"""A stream of frames produced in a worker process beside the backend (issue 7: whole-pipeline speed).
+
+The backend (GTSAM with the Python error functions of ``factors/``) holds the GIL for most of its
+time, so a frontend in a worker *thread* of the same process keeps waiting for it: on the 2-core
+machine the two shared about 1.5 cores. In a process of its own the frontend (image decoding, KLT,
+RANSAC, detection) runs on the other core, and only its small results (bearings, pixels, ids,
+reports; the images when a recording needs them) cross over.
+
+:func:`stream_in_process` runs ``make_stream(*args)`` in a spawned process (fork is unsafe with
+OpenCV's thread pool) and yields its items in order through a bounded queue, so at most
+``queue_size`` frames are produced ahead of the consumer. The worker's log records are handed to
+this process's loggers; an exception in the worker is raised here as the same exception (the
+worker's traceback is logged at DEBUG); a worker that dies without a word (killed, crashed) gives a
+:class:`~ampc_vo.errors.SourceError`. Closing the stream early (an error in the backend, Ctrl-C)
+stops the worker.
+"""
+from __future__ import annotations
+
+import logging
+import logging.handlers
+import multiprocessing
+import pickle
+import queue as queue_module
+import traceback
+from typing import Any, Callable, Iterator
+
+from threadpoolctl import threadpool_limits
+
+from ampc_vo.errors import SourceError
+
+logger = logging.getLogger(__name__)
+
+_STEP, _LOG, _ERROR, _DONE = "step", "log", "error", "done"
+_POLL_S = 0.5  # how often the consumer checks that a silent worker is still alive
+
+
+class _ForwardingHandler(logging.handlers.QueueHandler):
+    """Puts the worker's log records (message already formatted) on the stream's queue."""
+
+    def enqueue(self, record: logging.LogRecord) -> None:
+        self.queue.put((_LOG, record))
+
+
+def _worker_main(channel: Any, make_stream: Callable[..., Iterator[Any]], args: tuple, log_level: int) -> None:
+    """Entry point of the worker process: produce every item, then a done marker (or the error)."""
+    root = logging.getLogger()
+    root.handlers[:] = [_ForwardingHandler(channel)]
+    root.setLevel(log_level)
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):  # small arrays: BLAS threads only spin
+            for item in make_stream(*args):
+                channel.put((_STEP, item))
+        channel.put((_DONE, None))
+    except KeyboardInterrupt:  # Ctrl-C reaches the whole process group: the consumer handles it
+        return
+    except BaseException as error:  # noqa: BLE001 - everything goes back to the consumer
+        details = traceback.format_exc()
+        try:
+            pickle.dumps(error)
+        except Exception:  # an exception that cannot cross processes: keep its text
+            error = SourceError(f"{type(error).__name__}: {error}")
+        channel.put((_ERROR, (error, details)))
+
+
+def stream_in_process(make_stream: Callable[..., Iterator[Any]], args: tuple = (), queue_size: int = 4,
+                      name: str = "frontend") -> Iterator[Any]:
+    """Yield the items of ``make_stream(*args)`` computed in a worker process (module docstring).
+
+    ``make_stream`` must be a module-level function and ``args`` picklable (they are sent to the
+    spawned process). Items are produced at most ``queue_size`` ahead of the consumer.
+    """
+    if queue_size < 1:
+        raise ValueError(f"queue_size must be >= 1, got {queue_size}")
+    context = multiprocessing.get_context("spawn")
+    channel = context.Queue(maxsize=queue_size)
+    process = context.Process(target=_worker_main, args=(channel, make_stream, args, logging.getLogger().getEffectiveLevel()),
+                              name=f"ampc-vo-{name}", daemon=True)
+    process.start()
+    try:
+        while True:
+            try:
+                kind, payload = channel.get(timeout=_POLL_S)
+            except queue_module.Empty:
+                if process.is_alive():
+                    continue
+                try:  # it may have put its last items just before it ended
+                    kind, payload = channel.get(timeout=_POLL_S)
+                except queue_module.Empty:
+                    raise SourceError(f"the {name} process stopped unexpectedly (exit code {process.exitcode})") from None
+            if kind == _STEP:
+                yield payload
+            elif kind == _LOG:
+                target = logging.getLogger(payload.name)
+                if target.isEnabledFor(payload.levelno):
+                    target.handle(payload)
+            elif kind == _ERROR:
+                error, details = payload
+                logger.debug("%s process failed:\n%s", name, details)
+                raise error
+            else:
+                return
+    finally:
+        if process.is_alive():
+            process.terminate()
+        process.join(timeout=5.0)
+        channel.close()
+        channel.cancel_join_thread()

@@ -1,0 +1,49 @@
+"""A frame stream in a worker process (ampc_vo.worker): order, errors, logs, a dying worker, early close.
+(That the image source gives the same observations in its own process as inline: tests/test_runner.py.)"""
+from __future__ import annotations
+
+import itertools
+import logging
+
+import pytest
+
+import worker_support
+from ampc_vo.errors import DatasetError, SourceError
+from ampc_vo.worker import stream_in_process
+
+
+def test_items_arrive_in_order_through_a_small_queue():
+    assert list(stream_in_process(worker_support.count_up, (25,), queue_size=2)) == list(range(25))
+
+
+def test_an_error_in_the_worker_is_raised_here_with_its_type_and_message():
+    received = []
+    with pytest.raises(DatasetError, match="000007.png cannot be decoded"):
+        for item in stream_in_process(worker_support.fail_after, (4,)):
+            received.append(item)
+    assert received == [0, 1, 2, 3]  # what came before the error is delivered
+
+
+def test_worker_log_records_reach_this_process_at_its_level(caplog):
+    caplog.set_level(logging.INFO)
+    assert list(stream_in_process(worker_support.log_then_stop, ("camera rear: blank image",))) == [1]
+    messages = [(record.name, record.levelno, record.getMessage()) for record in caplog.records]
+    assert ("ampc_vo.frontend", logging.WARNING, "camera rear: blank image") in messages
+    assert not any("not shown" in message for _, _, message in messages)
+
+
+def test_a_worker_that_dies_gives_a_clear_error():
+    received = []
+    with pytest.raises(SourceError, match="stopped unexpectedly .*exit code 3"):
+        for item in stream_in_process(worker_support.die_after, (3,)):
+            received.append(item)
+    assert received == [0, 1, 2][: len(received)]  # items still in its send buffer die with it
+
+
+def test_closing_the_stream_early_stops_the_worker():
+    import multiprocessing
+
+    stream = stream_in_process(worker_support.forever, (), queue_size=2)
+    assert list(itertools.islice(stream, 5)) == [0, 1, 2, 3, 4]
+    stream.close()
+    assert not [child for child in multiprocessing.active_children() if child.name == "ampc-vo-frontend"]
