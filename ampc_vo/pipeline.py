@@ -264,9 +264,13 @@ class OdometryPipeline:
         iterator = frames
         bar = None
         if show:
+            import sys
+
             from tqdm import tqdm
 
-            bar = tqdm(frames, total=total, unit="frame", desc=f"odometry ({self.config.mode})", leave=False)
+            # redrawn at most every 0.2 s on a terminal; every 10 s into a log file (no wall of lines)
+            bar = tqdm(frames, total=total, unit="frame", desc=f"odometry ({self.config.mode})", leave=False,
+                       mininterval=0.2 if sys.stderr.isatty() else 10.0)
             iterator = bar
         started = time.perf_counter()
         # the backend's numpy work is on small arrays: BLAS threads would only spin, taking the
@@ -279,7 +283,8 @@ class OdometryPipeline:
                     on_frame(frame, published)
                 if bar is not None and self.estimates:
                     last = self.estimates[-1]
-                    bar.set_postfix(kf=len(self.estimates), dist=f"{self._distance:.0f}m", hitch="-" if last.hitch_angle is None else f"{np.degrees(last.hitch_angle):.1f}°")
+                    bar.set_postfix(kf=len(self.estimates), dist=f"{self._distance:.0f}m", hitch="-" if last.hitch_angle is None else f"{np.degrees(last.hitch_angle):.1f}°",
+                                    refresh=False)
             remaining = self.finish()
             if on_frame is not None:
                 on_frame(None, remaining)

@@ -4,11 +4,14 @@
 Writes rig.yaml, frames.csv, groundtruth.csv, measurements.npz and (unless --no-images, and if the
 renderer is available) images/<camera>/<frame:06d>.png.
 
-Usage: python scripts/simulate_sequence.py --config configs/sim/demo.yaml --out runs/demo [--no-images]
+Usage: python scripts/simulate_sequence.py --config configs/sim/demo.yaml --out runs/demo [--no-images] [--rig RIG]
+
+--rig replaces the config's rig (e.g. the same route seen by the fisheye rig: configs/rigs/fisheye.yaml).
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import sys
 import time
@@ -16,7 +19,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
-from ampc_vo.errors import AmpcError  # noqa: E402
+from ampc_vo.errors import AmpcError, ConfigError  # noqa: E402
+from ampc_vo.sim_config import load_sim_config  # noqa: E402
 from ampc_vo.simulation import simulate_dataset  # noqa: E402
 
 
@@ -25,12 +29,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", required=True, help="simulation config (configs/sim/*.yaml)")
     parser.add_argument("--out", required=True, help="output dataset folder")
     parser.add_argument("--no-images", action="store_true", help="write bearing measurements only, no images")
+    parser.add_argument("--rig", type=Path, default=None, help="rig.yaml to use instead of the config's rig (e.g. configs/rigs/fisheye.yaml)")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     started = time.perf_counter()
     try:
-        result = simulate_dataset(args.config, args.out, with_images=not args.no_images, progress=True)
+        config = load_sim_config(args.config)
+        if args.rig is not None:
+            if not args.rig.is_file():
+                raise ConfigError(f"{args.rig}: rig file not found")
+            config = dataclasses.replace(config, rig_path=args.rig.resolve())
+        result = simulate_dataset(config, args.out, with_images=not args.no_images, progress=True)
     except AmpcError as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
