@@ -26,18 +26,20 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator
 
 import numpy as np
 
 from ampc_vo.config import VoConfig
 from ampc_vo.datasets.frame_images import load_frame_images
 from ampc_vo.errors import DatasetError
-from ampc_vo.evaluation import GroundTruth, groundtruth_of
 from ampc_vo.frontend import FrontendResult, MultiCameraFrontend, match_stereo_image, observations_with_stereo
 from ampc_vo.observations import FrameObservations
 from ampc_vo.rig import Rig
 from ampc_vo.worker import stream_in_process
+
+if TYPE_CHECKING:  # evaluation (evo, SciPy) is not imported by the frontend's worker process
+    from ampc_vo.evaluation import GroundTruth
 
 logger = logging.getLogger(__name__)
 
@@ -74,25 +76,25 @@ class Sequence:
         return int(self.timestamps.shape[0])
 
 
-def _pipelined(frame_count: int, produce: Callable[[int], FrameStep], in_thread: bool) -> Iterator[FrameStep]:
-    """``produce(frame)`` for every frame in order; with ``in_thread`` the next frame is produced
+def _pipelined(frames: range, produce: Callable[[int], FrameStep], in_thread: bool) -> Iterator[FrameStep]:
+    """``produce(frame)`` for every frame of ``frames`` in order; with ``in_thread`` the next frame is produced
     (decoded and tracked: OpenCV releases the GIL) in a worker thread while the caller runs the
     backend on this one. The frontend's state is only touched by that one worker, in frame order."""
     if not in_thread:
-        for frame in range(frame_count):
+        for frame in frames:
             yield produce(frame)
         return
     with ThreadPoolExecutor(max_workers=1) as worker:
-        upcoming = worker.submit(produce, 0) if frame_count else None
-        for frame in range(frame_count):
+        upcoming = worker.submit(produce, frames[0]) if len(frames) else None
+        for position in range(len(frames)):
             step = upcoming.result()
-            upcoming = worker.submit(produce, frame + 1) if frame + 1 < frame_count else None
+            upcoming = worker.submit(produce, frames[position + 1]) if position + 1 < len(frames) else None
             yield step
 
 
 def _frontend_stream(make_steps: Callable[..., Iterator[FrameStep]], dataset: object, rig: Rig, config: VoConfig,
                      *more: object) -> Iterator[FrameStep]:
-    """``make_steps(dataset, rig, config, *more)``, in a worker process when
+    """``make_steps(dataset, rig, config, *more)`` (``more``: the frames, then any stereo pairs), in a worker process when
     ``config.frontend_worker`` is ``process`` (:func:`ampc_vo.worker.stream_in_process`: the
     frontend then shares no GIL with the backend). The simulated bearings a dataset may carry
     stay here (the frontend does not need them)."""
@@ -103,9 +105,10 @@ def _frontend_stream(make_steps: Callable[..., Iterator[FrameStep]], dataset: ob
     return stream_in_process(make_steps, (dataset, rig, dataclasses.replace(config, frontend_worker="none"), *more))
 
 
-def image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs: tuple[tuple[str, str], ...] = ()) -> Iterator[FrameStep]:
-    """The image frontend over every frame of ``dataset`` (``camera_names``, ``timestamps``,
-    ``load_image``); a missing or corrupt image is logged and that camera re-initialises. With
+def image_steps(dataset: object, rig: Rig, config: VoConfig, frames: range | None = None,
+                stereo_pairs: tuple[tuple[str, str], ...] = ()) -> Iterator[FrameStep]:
+    """The image frontend over the ``frames`` (default: all) of ``dataset`` (``camera_names``,
+    ``timestamps``, ``load_image``); a missing or corrupt image is logged and that camera re-initialises. With
     ``config.threads`` > 1 cameras are tracked in parallel; with ``config.frontend_worker`` thread
     the next frame is decoded and tracked while the backend works on this one (:func:`_pipelined`;
     for ``process`` see :func:`_frontend_stream`)."""
@@ -117,11 +120,13 @@ def image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs: tuple
             result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), images)
             return FrameStep(result.observations, images, result, time.perf_counter() - started)
 
-        yield from _pipelined(len(dataset), produce, config.frontend_worker == "thread")
+        yield from _pipelined(range(len(dataset)) if frames is None else frames, produce, config.frontend_worker == "thread")
 
 
-def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs: tuple[tuple[str, str], ...]) -> Iterator[FrameStep]:
-    """The image frontend for a rig with overlapping pairs (KITTI): the first camera of each pair
+def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, frames: range | None,
+                       stereo_pairs: tuple[tuple[str, str], ...]) -> Iterator[FrameStep]:
+    """The image frontend over the ``frames`` (default: all) of a rig with overlapping pairs
+    (KITTI): the first camera of each pair
     (and any camera in no pair) is tracked; the second camera is not tracked on its own, its
     observations are the first camera's features found in its image (:func:`match_stereo_image`),
     with the first camera's track ids; both carry ``landmark_ids`` = those ids
@@ -142,12 +147,23 @@ def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, stereo_pairs
             observations = observations_with_stereo(result.observations, stereo)
             return FrameStep(observations, images, FrontendResult(observations, result.reports, stereo), time.perf_counter() - started)
 
-        yield from _pipelined(len(dataset), produce, config.frontend_worker == "thread")
+        yield from _pipelined(range(len(dataset)) if frames is None else frames, produce, config.frontend_worker == "thread")
 
 
-def _bearing_steps(measurements: object, rig: Rig) -> Iterator[FrameStep]:
-    for observations in measurements.frames(rig):
-        yield FrameStep(observations)
+def _bearing_steps(measurements: object, rig: Rig, frames: range) -> Iterator[FrameStep]:
+    for frame in frames:
+        yield FrameStep(measurements.observations(frame, rig))
+
+
+def frame_selection(count: int, start: int = 0, stop: int | None = None, where: str = "dataset") -> range:
+    """The frames ``[start, stop)`` of a dataset of ``count`` frames (``stop`` beyond the end: to the
+    end; ``None``: all); :class:`DatasetError` when the selection is empty or negative."""
+    stop = count if stop is None else min(stop, count)
+    if start < 0 or stop < 0:
+        raise DatasetError(f"{where}: frame numbers start at 0, got start {start}, stop {stop}")
+    if start >= stop:
+        raise DatasetError(f"{where}: no frames selected: start {start}, stop {stop} (the dataset has frames 0 to {count - 1})")
+    return range(start, stop)
 
 
 KITTI_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "vo" / "kitti.yaml"
@@ -166,8 +182,9 @@ def default_config_path(path: str | Path | None) -> Path | None:
     return None
 
 
-def open_sequence(path: str | Path, config: VoConfig) -> Sequence:
-    """Open a dataset folder or KITTI folder as a :class:`Sequence` (module docstring)."""
+def open_sequence(path: str | Path, config: VoConfig, start: int = 0, stop: int | None = None) -> Sequence:
+    """Open a dataset folder or KITTI folder as a :class:`Sequence` (module docstring) of its
+    frames ``[start, stop)`` (default: all; frames keep their numbers, the ground truth stays whole)."""
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path}: no such dataset folder")
@@ -176,31 +193,35 @@ def open_sequence(path: str | Path, config: VoConfig) -> Sequence:
     from ampc_vo.datasets.kitti import is_kitti_folder
 
     if is_kitti_folder(path):
-        return _open_kitti(path, config)
+        return _open_kitti(path, config, start, stop)
     from ampc_vo.datasets.folder import read_dataset
+    from ampc_vo.evaluation import groundtruth_of
 
     dataset = read_dataset(path, load_measurements_file=config.source != "images", allow_missing_images=config.source != "bearings")
+    frames = frame_selection(len(dataset), start, stop, str(path))
+    timestamps = dataset.timestamps[frames.start:frames.stop]
     truth = groundtruth_of(dataset)
     use_images = config.source == "images" or (config.source == "auto" and dataset.has_images)
     if use_images:
         if not dataset.has_images:
             raise DatasetError(f"{path}: source 'images' asked for, but frames.csv lists no images for some camera")
-        logger.info("%s: %d frames of images from cameras %s (image frontend)", path, len(dataset), ", ".join(dataset.camera_names))
-        return Sequence(path, "images", dataset.rig, dataset.timestamps, truth, lambda: _frontend_stream(image_steps, dataset, dataset.rig, config))
+        logger.info("%s: %d frames of images from cameras %s (image frontend)", path, len(frames), ", ".join(dataset.camera_names))
+        return Sequence(path, "images", dataset.rig, timestamps, truth, lambda: _frontend_stream(image_steps, dataset, dataset.rig, config, frames))
     if dataset.measurements is None:
         raise DatasetError(f"{path}: no images and no measurements.npz: nothing to run on")
     measurements = dataset.measurements
-    logger.info("%s: %d frames of simulated bearing measurements", path, measurements.frame_count)
-    return Sequence(path, "bearings", dataset.rig, dataset.timestamps, truth, lambda: _bearing_steps(measurements, dataset.rig))
+    logger.info("%s: %d frames of simulated bearing measurements", path, len(frames))
+    return Sequence(path, "bearings", dataset.rig, timestamps, truth, lambda: _bearing_steps(measurements, dataset.rig, frames))
 
 
-def _open_kitti(path: Path, config: VoConfig) -> Sequence:
+def _open_kitti(path: Path, config: VoConfig, start: int, stop: int | None) -> Sequence:
     from ampc_vo.datasets.kitti import LEFT, RIGHT, load_kitti
 
     if config.source == "bearings":
         raise DatasetError(f"{path}: a KITTI folder has images only; source 'bearings' cannot be used")
     dataset = load_kitti(path)
-    logger.info("%s: KITTI folder, %d stereo frames", path, len(dataset))
-    return Sequence(path, "kitti", dataset.rig, dataset.timestamps, dataset.truth,
-                    lambda: _frontend_stream(stereo_image_steps, dataset, dataset.rig, config, ((LEFT, RIGHT),)),
+    frames = frame_selection(len(dataset), start, stop, str(path))
+    logger.info("%s: KITTI folder, %d stereo frames", path, len(frames))
+    return Sequence(path, "kitti", dataset.rig, dataset.timestamps[frames.start:frames.stop], dataset.truth,
+                    lambda: _frontend_stream(stereo_image_steps, dataset, dataset.rig, config, frames, ((LEFT, RIGHT),)),
                     T_body_reference=dataset.T_body_left_camera)

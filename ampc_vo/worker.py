@@ -12,16 +12,21 @@ OpenCV's thread pool) and yields its items in order through a bounded queue, so 
 this process's loggers; an exception in the worker is raised here as the same exception (the
 worker's traceback is logged at DEBUG); a worker that dies without a word (killed, crashed) gives a
 :class:`~ampc_vo.errors.SourceError`. Closing the stream early (an error in the backend, Ctrl-C)
-stops the worker.
+stops the worker. The worker does not import the caller's ``__main__`` (multiprocessing's spawn
+would: it re-runs a script without a ``if __name__ == "__main__"`` guard and fails for code read
+from stdin), so ``make_stream`` must live in an importable module.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import logging.handlers
 import multiprocessing
 import pickle
 import queue as queue_module
+import sys
 import traceback
+import types
 from typing import Any, Callable, Iterator
 
 from threadpoolctl import threadpool_limits
@@ -62,12 +67,24 @@ def _worker_main(channel: Any, make_stream: Callable[..., Iterator[Any]], args: 
         channel.put((_ERROR, (error, details)))
 
 
+@contextlib.contextmanager
+def _main_module_hidden() -> Iterator[None]:
+    """Start processes with a blank stand-in for ``__main__``: spawn then has no main module to
+    re-import in the child (module docstring)."""
+    main = sys.modules["__main__"]
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        sys.modules["__main__"] = main
+
+
 def stream_in_process(make_stream: Callable[..., Iterator[Any]], args: tuple = (), queue_size: int = 4,
                       name: str = "frontend") -> Iterator[Any]:
     """Yield the items of ``make_stream(*args)`` computed in a worker process (module docstring).
 
-    ``make_stream`` must be a module-level function and ``args`` picklable (they are sent to the
-    spawned process). Items are produced at most ``queue_size`` ahead of the consumer.
+    ``make_stream`` must be a function of an importable module (not ``__main__``) and ``args``
+    picklable (they are sent to the spawned process). Items are produced at most ``queue_size`` ahead of the consumer.
     """
     if queue_size < 1:
         raise ValueError(f"queue_size must be >= 1, got {queue_size}")
@@ -75,7 +92,8 @@ def stream_in_process(make_stream: Callable[..., Iterator[Any]], args: tuple = (
     channel = context.Queue(maxsize=queue_size)
     process = context.Process(target=_worker_main, args=(channel, make_stream, args, logging.getLogger().getEffectiveLevel()),
                               name=f"ampc-vo-{name}", daemon=True)
-    process.start()
+    with _main_module_hidden():
+        process.start()
     try:
         while True:
             try:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import itertools
 import os
 import sys
 import tempfile
@@ -41,18 +40,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         from ampc_vo.demo import demo_dataset
         from ampc_vo.runner import run_sequence
-        from ampc_vo.sources import Sequence, open_sequence
+        from ampc_vo.sources import open_sequence
 
         base = load_config(args.config)
         dataset = args.dataset or demo_dataset()
         speeds = {}
         for worker in args.workers:
             config = dataclasses.replace(base, frontend_worker=worker)
-            sequence = open_sequence(dataset, config)
-            if args.frames is not None:
-                full = sequence
-                sequence = Sequence(full.path, full.kind, full.rig, full.timestamps[: args.frames], full.truth,
-                                    lambda: itertools.islice(full.steps(), args.frames), full.T_body_reference)
+            sequence = open_sequence(dataset, config, stop=args.frames)
             load_before = os.getloadavg()[0]
             with tempfile.TemporaryDirectory() as out:
                 summary, _ = run_sequence(sequence, config, out, progress=False)

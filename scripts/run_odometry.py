@@ -2,6 +2,7 @@
 """Run the odometry on a dataset (issues 5 and 7, DESIGN sections 4, 5).
 
     python scripts/run_odometry.py [DATASET] --out OUT [--config CONFIG] [--mode MODE] [--rerun FILE.rrd]
+                                   [--start FRAME] [--stop FRAME]
 
 DATASET is one of: our dataset folder with images (image frontend), our dataset folder with
 measurements.npz only (simulated bearings), or a KITTI odometry folder (recognised by calib.txt and
@@ -34,6 +35,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", type=Path, default=None, help="VO config YAML (default: configs/vo/kitti.yaml for a KITTI folder, else the built-in defaults = configs/vo/default.yaml)")
     parser.add_argument("--mode", choices=MODES, default=None, help="override the config's mode")
     parser.add_argument("--source", choices=SOURCES, default=None, help="override the config's source (images or bearings)")
+    parser.add_argument("--start", type=int, default=0, metavar="FRAME", help="first frame to run on (default 0)")
+    parser.add_argument("--stop", type=int, default=None, metavar="FRAME", help="stop before this frame (default: the end)")
     parser.add_argument("--rerun", type=Path, default=None, metavar="FILE.rrd", help="write a Rerun recording")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--wheel-speed-from-groundtruth", type=float, default=None, metavar="SIGMA_M",
@@ -61,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         from ampc_vo.runner import run_sequence
         from ampc_vo.sources import open_sequence
 
-        sequence = open_sequence(dataset_path, config)
+        sequence = open_sequence(dataset_path, config, args.start, args.stop)
         wheel = None
         if args.wheel_speed_from_groundtruth is not None:
             if sequence.truth is None:

@@ -1,6 +1,6 @@
 """Measurement sources (ampc_vo.sources): a KITTI folder opens as the stereo image source (the right
 camera's observations are the left features matched into it, with cross-camera landmark ids),
-its default config, and the left/right association the backend relies on."""
+its default config, the left/right association the backend relies on, and frame ranges."""
 from __future__ import annotations
 
 import itertools
@@ -12,7 +12,8 @@ import pytest
 from ampc_vo.config import VoConfig, load_config
 from ampc_vo.frontend import StereoMatches, observations_with_stereo
 from ampc_vo.observations import CameraObservations, FrameObservations
-from ampc_vo.sources import KITTI_CONFIG, default_config_path, open_sequence
+from ampc_vo.errors import DatasetError
+from ampc_vo.sources import KITTI_CONFIG, default_config_path, frame_selection, open_sequence
 
 KITTI_CLIP = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-clip"
 needs_clip = pytest.mark.skipif(not KITTI_CLIP.is_dir(), reason=f"KITTI clip not found at {KITTI_CLIP}")
@@ -63,3 +64,38 @@ def test_kitti_folder_is_a_stereo_source_with_landmark_ids():
     # tracks continue: most left ids of frame 1 are in frame 2, and so are their right matches
     shared = np.intersect1d(steps[1].observations.cameras["right"].track_ids, steps[2].observations.cameras["right"].track_ids)
     assert shared.size > 100
+
+
+def test_frame_selection_clamps_the_end_and_rejects_empty_or_negative_ranges():
+    assert frame_selection(50) == range(0, 50)
+    assert frame_selection(50, 10, 20) == range(10, 20)
+    assert frame_selection(50, 10, 500) == range(10, 50)
+    with pytest.raises(DatasetError, match="no frames selected: start 60"):
+        frame_selection(50, 60, None, "data")
+    with pytest.raises(DatasetError, match="start at 0"):
+        frame_selection(50, -1)
+
+
+def test_a_frame_range_of_a_bearing_dataset_keeps_frame_numbers_and_times(tmp_path, ci_simulation):
+    from ampc_vo.datasets.folder import write_dataset
+
+    result = ci_simulation
+    write_dataset(tmp_path, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory, measurements=result.measurements)
+    sequence = open_sequence(tmp_path, VoConfig(), start=12, stop=20)
+    steps = list(sequence.steps())
+    assert [step.observations.frame for step in steps] == list(range(12, 20))
+    np.testing.assert_allclose(sequence.timestamps, result.trajectory.timestamps[12:20])
+    np.testing.assert_allclose([step.observations.timestamp for step in steps], result.trajectory.timestamps[12:20])
+    assert len(sequence.truth.timestamps) == len(result.trajectory)  # the ground truth stays whole
+    for step in steps:
+        expected = result.measurements.observations(step.observations.frame, result.rig)
+        np.testing.assert_array_equal(step.observations.cameras["front"].track_ids, expected.cameras["front"].track_ids)
+
+
+@needs_clip
+def test_a_frame_range_of_the_kitti_clip_tracks_from_its_first_frame():
+    sequence = open_sequence(KITTI_CLIP, load_config(KITTI_CONFIG), start=30, stop=33)
+    steps = list(sequence.steps())
+    assert [step.observations.frame for step in steps] == [30, 31, 32]
+    assert len(steps[0].observations.cameras["left"]) > 100  # features detected at frame 30, not carried from 0
+    assert steps[0].frontend.reports["left"].tracked == 0

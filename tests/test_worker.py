@@ -47,3 +47,32 @@ def test_closing_the_stream_early_stops_the_worker():
     assert list(itertools.islice(stream, 5)) == [0, 1, 2, 3, 4]
     stream.close()
     assert not [child for child in multiprocessing.active_children() if child.name == "ampc-vo-frontend"]
+
+
+_SCRIPT_WITHOUT_MAIN_GUARD = """
+import sys
+sys.path[:0] = {paths!r}
+import worker_support
+from ampc_vo.worker import stream_in_process
+print("items", list(stream_in_process(worker_support.count_up, (3,))))
+"""
+
+
+@pytest.mark.parametrize("how", ["file", "stdin"])
+def test_callers_main_module_is_not_run_again_in_the_worker(tmp_path, how):
+    """A script without a main guard (or read from stdin) streams through a worker process: the
+    worker must not re-run it (spawn's default: recursion or a missing '<stdin>' file)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    tests = Path(__file__).resolve().parent
+    script = _SCRIPT_WITHOUT_MAIN_GUARD.format(paths=[str(tests), str(tests.parent)])
+    if how == "file":
+        path = tmp_path / "user_script.py"
+        path.write_text(script)
+        run = subprocess.run([sys.executable, str(path)], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    else:
+        run = subprocess.run([sys.executable, "-"], input=script, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.count("items [0, 1, 2]") == 1, run.stdout

@@ -18,15 +18,18 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from ampc_vo.datasets.frame_images import load_frame_images
 from ampc_vo.errors import DatasetError
-from ampc_vo.evaluation import GroundTruth
 from ampc_vo.geometry import invert_pose, make_pose
 from ampc_vo.rig import Body, Camera, Rig, camera_rotation
+
+if TYPE_CHECKING:  # evaluation (evo, SciPy) is not imported by the frontend's worker process
+    from ampc_vo.evaluation import GroundTruth
 
 logger = logging.getLogger(__name__)
 
@@ -192,6 +195,8 @@ class KittiDataset:
         compared in the frame of KITTI's ground truth, the left camera (``T_tractor_reference``)."""
         if self.T_world_tractor is None:
             return None
+        from ampc_vo.evaluation import GroundTruth
+
         return GroundTruth(timestamps=self.timestamps.copy(), T_world_tractor=self.T_world_tractor.copy(), T_tractor_reference=self.T_body_left_camera.copy())
 
     def image_path(self, frame: int, camera: str) -> Path:
