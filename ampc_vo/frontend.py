@@ -201,13 +201,15 @@ def track_forward_backward(
     previous_image: np.ndarray,
     current_image: np.ndarray,
     previous_pixels: np.ndarray,
-    config: TrackerConfig,
+    config: "TrackerConfig | StereoConfig",
     image_size: tuple[int, int],
 ) -> tuple[np.ndarray, np.ndarray]:
     """KLT from the previous to the current image and back; returns ``(pixels (K, 2), good (K,))``.
 
     ``good`` is false for tracks that KLT lost in either direction, whose forward-backward error
-    exceeds ``fb_threshold_px``, or that end within ``border_px`` of the image border.
+    exceeds ``fb_threshold_px``, or that end within ``border_px`` of the border of the current
+    image (``image_size``). Also the stereo matcher's KLT (``match_stereo``: from the first
+    camera's image to the second's).
     """
     if len(previous_pixels) == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
@@ -646,6 +648,7 @@ class StereoConfig:
     lk_iterations: int = 30
     lk_epsilon: float = 0.01
     fb_threshold_px: float = 1.0
+    border_px: float = 0.0               # matches closer than this to the second image's border are dropped
     epipolar_threshold_px: float = 0.7   # Sampson GEC error of the known pair, pixels (rectified: row error / sqrt 2)
     min_depth_m: float = 1.0             # points closer than this (or behind) are rejected
     max_depth_m: float = 200.0
@@ -713,21 +716,7 @@ def match_stereo(
     config = config or StereoConfig()
     if len(first) == 0:
         return StereoMatches.empty(second_camera.name)
-    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, config.lk_iterations, config.lk_epsilon)
-    window = (config.lk_window, config.lk_window)
-    start = np.ascontiguousarray(first.pixels, dtype=np.float32).reshape(-1, 1, 2)
-    forward, status_forward, _ = cv2.calcOpticalFlowPyrLK(first_image, second_image, start, None, winSize=window, maxLevel=config.lk_levels, criteria=criteria)
-    backward, status_backward, _ = cv2.calcOpticalFlowPyrLK(
-        second_image, first_image, forward, start.copy(), winSize=window, maxLevel=min(config.fb_levels, config.lk_levels),
-        criteria=criteria, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-    )
-    second_pixels = forward.reshape(-1, 2).astype(float)
-    fb_error = np.linalg.norm(backward.reshape(-1, 2) - start.reshape(-1, 2), axis=1)
-    inside = (
-        (second_pixels[:, 0] >= 0) & (second_pixels[:, 0] <= second_camera.width - 1)
-        & (second_pixels[:, 1] >= 0) & (second_pixels[:, 1] <= second_camera.height - 1)
-    )
-    good = (status_forward.ravel() == 1) & (status_backward.ravel() == 1) & (fb_error < config.fb_threshold_px) & inside
+    second_pixels, good = track_forward_backward(first_image, second_image, first.pixels, config, (second_camera.width, second_camera.height))
     if not good.any():
         return StereoMatches.empty(second_camera.name)
     second_bearings = second_camera.unproject(second_pixels[good])
