@@ -39,11 +39,31 @@ _STEP, _LOG, _ERROR, _DONE = "step", "log", "error", "done"
 _POLL_S = 0.5  # how often the consumer checks that a silent worker is still alive
 
 
+class _ConsumerGone(Exception):
+    """The consuming process has ended (killed): nobody reads the queue any more."""
+
+
+def _send(channel: Any, message: tuple) -> None:
+    """Put ``message`` on the queue, waiting while it is full; :class:`_ConsumerGone` when the
+    consumer died meanwhile (so a worker whose consumer was killed ends instead of waiting forever)."""
+    parent = multiprocessing.parent_process()
+    while True:
+        try:
+            channel.put(message, timeout=_POLL_S)
+            return
+        except queue_module.Full:
+            if parent is not None and not parent.is_alive():
+                raise _ConsumerGone from None
+
+
 class _ForwardingHandler(logging.handlers.QueueHandler):
     """Puts the worker's log records (message already formatted) on the stream's queue."""
 
     def enqueue(self, record: logging.LogRecord) -> None:
-        self.queue.put((_LOG, record))
+        try:
+            _send(self.queue, (_LOG, record))
+        except _ConsumerGone:
+            pass
 
 
 def _worker_main(channel: Any, make_stream: Callable[..., Iterator[Any]], args: tuple, log_level: int) -> None:
@@ -54,9 +74,9 @@ def _worker_main(channel: Any, make_stream: Callable[..., Iterator[Any]], args: 
     try:
         with threadpool_limits(limits=1, user_api="blas"):  # small arrays: BLAS threads only spin
             for item in make_stream(*args):
-                channel.put((_STEP, item))
-        channel.put((_DONE, None))
-    except KeyboardInterrupt:  # Ctrl-C reaches the whole process group: the consumer handles it
+                _send(channel, (_STEP, item))
+        _send(channel, (_DONE, None))
+    except (KeyboardInterrupt, _ConsumerGone):  # Ctrl-C reaches the whole process group: the consumer handles it
         return
     except BaseException as error:  # noqa: BLE001 - everything goes back to the consumer
         details = traceback.format_exc()
@@ -64,7 +84,10 @@ def _worker_main(channel: Any, make_stream: Callable[..., Iterator[Any]], args: 
             pickle.dumps(error)
         except Exception:  # an exception that cannot cross processes: keep its text
             error = SourceError(f"{type(error).__name__}: {error}")
-        channel.put((_ERROR, (error, details)))
+        try:
+            _send(channel, (_ERROR, (error, details)))
+        except _ConsumerGone:
+            pass
 
 
 @contextlib.contextmanager

@@ -76,3 +76,42 @@ def test_callers_main_module_is_not_run_again_in_the_worker(tmp_path, how):
         run = subprocess.run([sys.executable, "-"], input=script, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert run.returncode == 0, run.stderr[-2000:]
     assert run.stdout.count("items [0, 1, 2]") == 1, run.stdout
+
+
+_SCRIPT_KILLED_CONSUMER = """
+import multiprocessing, sys, time
+sys.path[:0] = {paths!r}
+import worker_support
+from ampc_vo.worker import stream_in_process
+stream = stream_in_process(worker_support.forever, (), queue_size=1)
+next(stream), next(stream)
+print([child.pid for child in multiprocessing.active_children() if child.name == "ampc-vo-frontend"][0], flush=True)
+time.sleep(120)
+"""
+
+
+def test_a_worker_whose_consumer_is_killed_ends_by_itself(tmp_path):
+    """SIGKILL of the consumer (no cleanup runs there): the worker, blocked on a full queue, ends."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    tests = Path(__file__).resolve().parent
+    consumer = subprocess.Popen([sys.executable, "-c", _SCRIPT_KILLED_CONSUMER.format(paths=[str(tests), str(tests.parent)])],
+                                stdout=subprocess.PIPE, text=True)
+    worker_pid = int(consumer.stdout.readline())
+    consumer.send_signal(signal.SIGKILL)
+    consumer.wait(10)
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline:
+        try:
+            os.kill(worker_pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        os.kill(worker_pid, signal.SIGKILL)
+        pytest.fail("the worker went on after its consumer was killed")
