@@ -107,7 +107,8 @@ def stream_in_process(make_stream: Callable[..., Iterator[Any]], args: tuple = (
     """Yield the items of ``make_stream(*args)`` computed in a worker process (module docstring).
 
     ``make_stream`` must be a function of an importable module (not ``__main__``) and ``args``
-    picklable (they are sent to the spawned process). Items are produced at most ``queue_size`` ahead of the consumer.
+    picklable (they are sent to the spawned process). Items are produced at most ``queue_size``
+    ahead of the consumer.
     """
     if queue_size < 1:
         raise ValueError(f"queue_size must be >= 1, got {queue_size}")
