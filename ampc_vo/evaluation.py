@@ -330,7 +330,7 @@ def load_groundtruth(dataset_dir: str | Path) -> GroundTruth:
     if is_kitti_folder(dataset_dir):
         return load_kitti_truth(dataset_dir)
 
-    truth = groundtruth_of(read_dataset(dataset_dir, load_measurements_file=False))
+    truth = groundtruth_of(read_dataset(dataset_dir, load_measurements_file=False, image_files=False))
     if truth is None:
         raise DatasetError(f"{dataset_dir}: dataset has no groundtruth.csv")
     return truth

@@ -227,7 +227,8 @@ def _read_groundtruth(path: Path, timestamps: np.ndarray) -> Trajectory:
     return Trajectory(values[:, 0].copy(), T_world_tractor, T_world_trailer, values[:, 15].copy())
 
 
-def read_dataset(root: str | Path, check_images: bool = False, load_measurements_file: bool = True, allow_missing_images: bool = False) -> Dataset:
+def read_dataset(root: str | Path, check_images: bool = False, load_measurements_file: bool = True, allow_missing_images: bool = False,
+                 image_files: bool = True) -> Dataset:
     """Open and validate a dataset folder (module docstring).
 
     Always checks that every listed image exists: a missing one is an error, or with
@@ -235,7 +236,9 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
     more than half of them missing is still an error). With ``check_images`` also decodes every image
     and checks its size against the rig (slow on long sequences). A dataset whose image columns are all empty, or whose ``images/``
     folder is absent, has no images (``has_images`` is False, e.g. bearing measurements only);
-    partially empty image columns are an error.
+    partially empty image columns are an error. With ``image_files=False`` the image files are not
+    looked at at all (for readers of the ground truth only, e.g. the evaluation of a run that skipped
+    a missing image).
     """
     root = Path(root)
     if not root.is_dir():
@@ -250,14 +253,14 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
     frames_path = root / FRAMES_FILE
     frames, timestamps, camera_names, image_paths = _read_frames(frames_path, rig)
     empty = image_paths == ""
-    if not np.all(empty) and not (root / IMAGES_DIR).is_dir():
+    if image_files and not np.all(empty) and not (root / IMAGES_DIR).is_dir():
         LOGGER.warning("%s: frames.csv lists images but %s/ is absent: reading as a dataset without images", root, IMAGES_DIR)
         image_paths = np.full(image_paths.shape, "", dtype=object)
         empty = image_paths == ""
     if np.any(empty) and not np.all(empty):
         frame, column = np.argwhere(empty)[0]
         raise DatasetError(f"{frames_path}: line {frame + 2}: image path for camera {camera_names[column]!r} is empty while other frames have images")
-    if not np.all(empty):
+    if image_files and not np.all(empty):
         missing = [path for path in image_paths.ravel() if not (root / path).is_file()]
         if missing:
             message = f"{root / missing[0]}: image file missing (listed in {frames_path}; {len(missing)} missing in total)"
