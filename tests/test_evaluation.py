@@ -151,3 +151,12 @@ def test_ground_truth_of_a_dataset_with_missing_images(tmp_path):
     (root / "images" / "front").mkdir(parents=True)  # images/ exists, but every listed image is missing
     loaded = load_groundtruth(root)
     np.testing.assert_allclose(loaded.T_world_tractor, truth.T_world_tractor, atol=1e-9)
+
+
+def test_a_timing_file_with_a_non_number_is_logged_and_ignored(tmp_path, caplog):
+    from ampc_vo.evaluation import read_seconds_per_frame
+
+    (tmp_path / "timing.json").write_text('{"seconds_per_frame": "fast"}')
+    with caplog.at_level("WARNING"):
+        assert read_seconds_per_frame(tmp_path) is None
+    assert "unreadable timing file" in caplog.text
