@@ -358,7 +358,7 @@ def load_rig(path: str | Path) -> Rig:
         raise ConfigError(f"{path}: rig file not found")
     try:
         raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as error:
+    except (yaml.YAMLError, UnicodeDecodeError) as error:  # a binary or non-UTF-8 file too
         raise ConfigError(f"{path}: not valid YAML: {error}") from None
     return rig_from_dict(raw, source=str(path))
 

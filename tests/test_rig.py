@@ -156,6 +156,9 @@ def test_missing_and_invalid_rig_files(tmp_path):
     bad.write_text("bodies: [unclosed")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_rig(bad)
+    bad.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe")  # an image saved as rig.yaml: was a UnicodeDecodeError traceback
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_rig(bad)
 
 
 def test_bearings_in_body_rotate_into_the_body_frame():
