@@ -93,6 +93,16 @@ def test_image_size_not_matching_the_rig(tiny_dataset):
         read_dataset(tiny_dataset).load_image(4, "front")
 
 
+def test_a_whole_camera_of_another_size_is_an_error_up_front(tiny_dataset):
+    """Checked on its first readable image (it used to be a warning at every frame and a run
+    without that camera); a corrupt first image is left to the run, which skips it."""
+    (tiny_dataset / "images" / "left" / "000000.png").write_bytes(b"not a png")
+    for frame in range(1, 5):
+        cv2.imwrite(str(tiny_dataset / "images" / "left" / f"{frame:06d}.png"), np.zeros((240, 320), np.uint8))
+    with pytest.raises(DatasetError, match=r"left/000001\.png: image is 320x240 but rig.yaml says camera 'left' is 640x480"):
+        read_dataset(tiny_dataset, allow_missing_images=True)
+
+
 def test_non_increasing_timestamps(tiny_dataset):
     def swap(rows):
         rows[3][1], rows[4][1] = rows[4][1], rows[3][1]

@@ -137,6 +137,20 @@ def _check_size(path: Path, image: np.ndarray, camera) -> None:
         raise DatasetError(f"{path}: image is {image.shape[1]}x{image.shape[0]} but rig.yaml says camera {camera.name!r} is {camera.width}x{camera.height}")
 
 
+def _check_first_image_sizes(root: Path, rig: Rig, camera_names: tuple[str, ...], image_paths: np.ndarray) -> None:
+    """The first readable image of each camera must have the rig's size: a whole camera of the
+    wrong size (another rig.yaml, resized images) is an error up front, not a warning at every frame.
+    Missing or corrupt images are left to the run (it skips them)."""
+    for column, name in enumerate(camera_names):
+        for relative in image_paths[:, column]:
+            try:
+                image = decode_image(root / relative)
+            except DatasetError:
+                continue
+            _check_size(root / relative, image, rig.camera(name))
+            break
+
+
 def decode_image(path: Path) -> np.ndarray:
     """Read an image as grey ``uint8``; a missing or undecodable file raises :class:`DatasetError`."""
     import cv2
@@ -234,7 +248,8 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
     Always checks that every listed image exists: a missing one is an error, or with
     ``allow_missing_images`` a warning (the odometry then logs and skips that camera at that frame;
     more than half of them missing is still an error). With ``check_images`` also decodes every image
-    and checks its size against the rig (slow on long sequences). A dataset whose image columns are all empty, or whose ``images/``
+    and checks its size against the rig (slow on long sequences); without, only the first readable
+    image of each camera. A dataset whose image columns are all empty, or whose ``images/``
     folder is absent, has no images (``has_images`` is False, e.g. bearing measurements only);
     partially empty image columns are an error. With ``image_files=False`` the image files are not
     looked at at all (for readers of the ground truth only, e.g. the evaluation of a run that skipped
@@ -271,6 +286,8 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
             for row in image_paths:
                 for name, path in zip(camera_names, row):
                     _check_size(root / path, decode_image(root / path), rig.camera(name))
+        else:
+            _check_first_image_sizes(root, rig, camera_names, image_paths)
     groundtruth_path = root / GROUNDTRUTH_FILE
     groundtruth = _read_groundtruth(groundtruth_path, timestamps) if groundtruth_path.is_file() else None
     measurements = None
