@@ -16,6 +16,7 @@ match the frames.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -241,6 +242,20 @@ def _read_groundtruth(path: Path, timestamps: np.ndarray) -> Trajectory:
     return Trajectory(values[:, 0].copy(), T_world_tractor, T_world_trailer, values[:, 15].copy())
 
 
+def _with_frame_timestamps(path: Path, measurements: Measurements, timestamps: np.ndarray) -> Measurements:
+    """The measurements with frames.csv's timestamps (the bearing source runs on the measurements'
+    own ones): taken over when the file has none (frame indices by default), else they must agree."""
+    mismatch = np.flatnonzero(np.abs(measurements.timestamps - timestamps) > TIMESTAMP_TOLERANCE)
+    if not len(mismatch):
+        return measurements
+    if np.array_equal(measurements.timestamps, np.arange(len(timestamps), dtype=float)):
+        LOGGER.info("%s: no timestamps in the file: using those of %s", path, FRAMES_FILE)
+        return dataclasses.replace(measurements, timestamps=timestamps.copy())
+    index = int(mismatch[0])
+    raise DatasetError(f"{path}: frame {index}: timestamp {measurements.timestamps[index]} does not match {FRAMES_FILE} timestamp {timestamps[index]} "
+                       f"({len(mismatch)} frames differ)")
+
+
 def read_dataset(root: str | Path, check_images: bool = False, load_measurements_file: bool = True, allow_missing_images: bool = False,
                  image_files: bool = True) -> Dataset:
     """Open and validate a dataset folder (module docstring).
@@ -296,5 +311,6 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
         measurements = load_measurements(measurements_path, rig)
         if measurements.frame_count != len(timestamps):
             raise DatasetError(f"{measurements_path}: {measurements.frame_count} frames but frames.csv has {len(timestamps)}")
+        measurements = _with_frame_timestamps(measurements_path, measurements, timestamps)
     LOGGER.info("dataset %s: %d frames, cameras %s, images %s", root, len(timestamps), list(camera_names), not np.all(empty))
     return Dataset(root, rig, frames, timestamps, camera_names, image_paths, groundtruth, measurements)
