@@ -98,11 +98,11 @@ def read_poses(path: str | Path) -> np.ndarray:
     """(N, 4, 4) poses from a KITTI ``poses.txt`` (one row of 12 numbers per frame)."""
     path = Path(path)
     try:
+        if not path.read_text().strip():
+            raise DatasetError(f"{path}: no poses (empty file)")
         rows = np.loadtxt(path, ndmin=2)
     except (OSError, ValueError) as error:
         raise DatasetError(f"{path}: unreadable poses file ({error})") from None
-    if rows.size == 0:
-        raise DatasetError(f"{path}: no poses (empty file)")
     if rows.shape[1] != 12:
         raise DatasetError(f"{path}: expected 12 numbers per line (3x4 [R|t]), got {rows.shape[1]}")
     if not np.all(np.isfinite(rows)):
