@@ -321,7 +321,7 @@ def config_from_dict(raw: Any, source: str = "config") -> VoConfig:
         config = _section_from_dict(VoConfig, raw if raw is not None else {}, "")
         config.validate()
     except _FieldError as error:
-        raise ConfigError(f"{source}: {error.where}: {error.problem}") from None
+        raise ConfigError(f"{source}: {error.where or 'top level'}: {error.problem}") from None
     return config
 
 
@@ -334,7 +334,7 @@ def load_config(path: str | Path | None = None) -> VoConfig:
         raise ConfigError(f"{path}: config file not found")
     try:
         raw = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as error:
+    except (yaml.YAMLError, UnicodeDecodeError) as error:  # a binary or non-UTF-8 file too
         raise ConfigError(f"{path}: not valid YAML: {error}") from None
     return config_from_dict(raw, source=str(path))
 

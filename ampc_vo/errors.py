@@ -18,5 +18,9 @@ class BearingError(AmpcError, ValueError):
     """Bearing vectors of the wrong shape, with NaN, or of zero length."""
 
 
+class OutputError(AmpcError):
+    """The output folder cannot be created or written (a file in its place, no permission, ...)."""
+
+
 class SourceError(AmpcError):
     """A measurement source failed while running (e.g. its worker process died)."""

@@ -253,10 +253,10 @@ def read_seconds_per_frame(output_dir: str | Path) -> float | None:
         return None
     try:
         value = json.loads(path.read_text(encoding="utf-8")).get("seconds_per_frame")
-    except (json.JSONDecodeError, AttributeError) as error:
+        return None if value is None else float(value)
+    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError, TypeError, ValueError) as error:
         logger.warning("%s: unreadable timing file (%s)", path, error)
         return None
-    return None if value is None else float(value)
 
 
 def evaluate_output(output_dir: str | Path, truth: GroundTruth, seconds_per_frame: float | None = None, max_time_diff: float = 0.01) -> Evaluation:
@@ -330,7 +330,7 @@ def load_groundtruth(dataset_dir: str | Path) -> GroundTruth:
     if is_kitti_folder(dataset_dir):
         return load_kitti_truth(dataset_dir)
 
-    truth = groundtruth_of(read_dataset(dataset_dir, load_measurements_file=False))
+    truth = groundtruth_of(read_dataset(dataset_dir, load_measurements_file=False, image_files=False))
     if truth is None:
         raise DatasetError(f"{dataset_dir}: dataset has no groundtruth.csv")
     return truth

@@ -8,6 +8,7 @@
 """
 from __future__ import annotations
 
+import io
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,7 +17,7 @@ from typing import IO
 
 import numpy as np
 
-from ampc_vo.errors import DatasetError
+from ampc_vo.errors import DatasetError, OutputError
 from ampc_vo.geometry import pose_from_xyz_quat, pose_to_xyz_quat
 
 logger = logging.getLogger(__name__)
@@ -25,6 +26,7 @@ TRACTOR_FILE = "tractor.tum"
 TRAILER_FILE = "trailer.tum"
 HITCH_FILE = "hitch.csv"
 TUM_HEADER = "# timestamp x y z qx qy qz qw"
+QUATERNION_TOLERANCE = 1e-3  # |q| of a TUM row may differ from 1 by this much (rounded external files)
 HITCH_HEADER = "timestamp,hitch_angle,hitch_sigma"
 
 
@@ -85,12 +87,17 @@ class OutputWriter:
         self.close()
 
     def open(self) -> None:
-        """Create the output directory and the files with their headers."""
-        self.directory.mkdir(parents=True, exist_ok=True)
-        self._tractor = self._open(TRACTOR_FILE, TUM_HEADER)
-        if self.with_trailer:
-            self._trailer = self._open(TRAILER_FILE, TUM_HEADER)
-            self._hitch = self._open(HITCH_FILE, HITCH_HEADER)
+        """Create the output directory and the files with their headers; :class:`OutputError` if
+        that is impossible (a file in the folder's place, no permission, ...)."""
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            self._tractor = self._open(TRACTOR_FILE, TUM_HEADER)
+            if self.with_trailer:
+                self._trailer = self._open(TRAILER_FILE, TUM_HEADER)
+                self._hitch = self._open(HITCH_FILE, HITCH_HEADER)
+        except OSError as error:
+            self.close()
+            raise OutputError(f"{self.directory}: cannot write the outputs there ({error.strerror or error}: {error.filename})") from None
 
     def _open(self, name: str, header: str) -> IO[str]:
         handle = open(self.directory / name, "w", encoding="utf-8")
@@ -130,14 +137,31 @@ class OutputWriter:
 
 
 # ---------------------------------------------------------------------- readers
+def _without_cut_last_line(path: Path, text: str, columns: int, delimiter: str | None) -> str:
+    """``text`` without its last line if a crash cut that line off mid-write (no final newline and
+    not ``columns`` numbers; every complete row ends with one), with a warning."""
+    if not text or text.endswith("\n"):
+        return text
+    head, _, last = text.rpartition("\n")
+    try:
+        complete = len([float(value) for value in last.split(delimiter)]) == columns
+    except ValueError:
+        complete = False
+    if complete or last.startswith("#"):
+        return text
+    logger.warning("%s: last line %r is incomplete (the run was cut off while writing it?): ignored", path, last[:60])
+    return head + "\n"
+
+
 def _load_rows(path: Path, columns: int, delimiter: str | None, finite_columns: int | None = None) -> np.ndarray:
     if not path.is_file():
         raise DatasetError(f"{path}: file not found")
-    data_lines = [line for line in path.read_text(encoding="utf-8").splitlines()[(0 if delimiter is None else 1):] if line.strip() and not line.startswith("#")]
+    text = _without_cut_last_line(path, path.read_text(encoding="utf-8"), columns, delimiter)
+    data_lines = [line for line in text.splitlines()[(0 if delimiter is None else 1):] if line.strip() and not line.startswith("#")]
     if not data_lines:
         return np.zeros((0, columns))
     try:
-        rows = np.loadtxt(path, comments="#", delimiter=delimiter, ndmin=2, skiprows=0 if delimiter is None else 1)
+        rows = np.loadtxt(io.StringIO(text), comments="#", delimiter=delimiter, ndmin=2, skiprows=0 if delimiter is None else 1)
     except ValueError as error:
         raise DatasetError(f"{path}: cannot parse: {error}") from None
     if rows.size == 0:
@@ -146,12 +170,20 @@ def _load_rows(path: Path, columns: int, delimiter: str | None, finite_columns: 
         raise DatasetError(f"{path}: expected {columns} columns per row, got {rows.shape[1]}")
     if not np.all(np.isfinite(rows[:, : finite_columns or columns])):
         raise DatasetError(f"{path}: contains NaN or infinite values")
+    repeated = np.flatnonzero(np.diff(rows[:, 0]) <= 0.0)
+    if len(repeated):
+        index = int(repeated[0])
+        raise DatasetError(f"{path}: timestamps not strictly increasing at data row {index + 2} ({rows[index, 0]} then {rows[index + 1, 0]})")
     return rows
 
 
 def read_tum(path: str | Path) -> Trajectory:
     """Read a TUM trajectory file (``t x y z qx qy qz qw``; ``#`` lines are comments)."""
     rows = _load_rows(Path(path), 8, None)
+    norms = np.linalg.norm(rows[:, 4:8], axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_TOLERANCE)
+    if len(bad):
+        raise DatasetError(f"{path}: data row {int(bad[0]) + 1} (timestamp {rows[bad[0], 0]}): quaternion is not unit length (norm {norms[bad[0]]:.6f})")
     poses = np.array([pose_from_xyz_quat(row[1:]) for row in rows]).reshape(-1, 4, 4)
     return Trajectory(timestamps=rows[:, 0].copy(), poses=poses)
 

@@ -352,9 +352,8 @@ def run_on_frames(rig: Rig, config: VoConfig, frames: Iterable[FrameObservations
         pipeline = OdometryPipeline(rig, config, wheel_odometry=wheel_odometry)
         return _with_source_time(pipeline.run(frames, total, progress, on_frame), source_seconds), pipeline.estimates
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    save_config(config, out_dir / "config.yaml")
-    with OutputWriter(out_dir, with_trailer=with_trailer) as writer:
+    with OutputWriter(out_dir, with_trailer=with_trailer) as writer:  # creates out_dir, or OutputError
+        save_config(config, out_dir / "config.yaml")
         pipeline = OdometryPipeline(rig, config, writer, wheel_odometry=wheel_odometry)
         summary = _with_source_time(pipeline.run(frames, total, progress, on_frame), source_seconds)
     if config.output.write_timing:

@@ -26,6 +26,7 @@ from ampc_vo.geometry import make_pose, quat_xyzw_from_rotation, rot_y, rot_z, r
 
 BODY_NAMES = ("tractor", "trailer")
 CAMERA_MODELS = ("pinhole", "fisheye")
+CAMERA_KEYS = ("name", "body", "model", "width", "height", "fx", "fy", "cx", "cy", "distortion", "T_body_camera")
 _NEWTON_ITERATIONS = 30
 _FISHEYE_MAX_THETA = np.deg2rad(100.0)
 
@@ -235,6 +236,8 @@ def _require(mapping: Any, key: str, where: str, source: str) -> Any:
 
 
 def _number(value: Any, where: str, source: str, positive: bool = False) -> float:
+    if isinstance(value, bool):  # YAML true/false would otherwise read as 1.0/0.0
+        raise ConfigError(f"{source}: {where}: expected a number, got {value!r}")
     try:
         number = float(value)
     except (TypeError, ValueError):
@@ -242,6 +245,13 @@ def _number(value: Any, where: str, source: str, positive: bool = False) -> floa
     if not np.isfinite(number) or (positive and number <= 0.0):
         raise ConfigError(f"{source}: {where}: must be a {'positive ' if positive else ''}finite number, got {value!r}")
     return number
+
+
+def _check_keys(spec: Any, known: tuple[str, ...], where: str, source: str) -> None:
+    """An unknown key (e.g. a misspelt ``distorsion``) is an error, not silently ignored."""
+    unknown = sorted(str(key) for key in spec if key not in known) if isinstance(spec, dict) else []
+    if unknown:
+        raise ConfigError(f"{source}: {where}{unknown[0]}: unknown key (known keys: {', '.join(known)})")
 
 
 def _vector(value: Any, length: int, where: str, source: str) -> np.ndarray:
@@ -257,6 +267,7 @@ def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
     """
     if not isinstance(raw, dict):
         raise ConfigError(f"{source}: expected a mapping with 'bodies' and 'cameras'")
+    _check_keys(raw, ("bodies", "cameras"), "", source)
     raw_bodies = _require(raw, "bodies", "", source)
     if not isinstance(raw_bodies, dict):
         raise ConfigError(f"{source}: bodies: expected a mapping of body name to {{axle_x: ...}}")
@@ -264,6 +275,7 @@ def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
     for name, spec in raw_bodies.items():
         if name not in BODY_NAMES:
             raise ConfigError(f"{source}: bodies.{name}: unknown body (expected one of {BODY_NAMES})")
+        _check_keys(spec, ("axle_x",), f"bodies.{name}.", source)
         axle_x = _number(_require(spec, "axle_x", f"bodies.{name}.", source), f"bodies.{name}.axle_x", source)
         bodies[name] = Body(name, axle_x)
     if "tractor" not in bodies:
@@ -286,12 +298,20 @@ def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
         model = _require(spec, "model", where, source)
         if model not in CAMERA_MODELS:
             raise ConfigError(f"{source}: {where}model: unknown camera model {model!r} (expected {CAMERA_MODELS})")
+        _check_keys(spec, CAMERA_KEYS, where, source)
         intrinsics = {key: _number(_require(spec, key, where, source), where + key, source, positive=key in ("fx", "fy", "width", "height")) for key in ("width", "height", "fx", "fy", "cx", "cy")}
+        for key in ("width", "height"):
+            if intrinsics[key] != int(intrinsics[key]):
+                raise ConfigError(f"{source}: {where}{key}: must be a whole number of pixels, got {spec[key]!r}")
+        for key, size in (("cx", "width"), ("cy", "height")):
+            if not 0.0 <= intrinsics[key] <= intrinsics[size]:
+                raise ConfigError(f"{source}: {where}{key}: principal point must lie in the image [0, {size} = {intrinsics[size]:g}], got {spec[key]!r}")
         distortion = spec.get("distortion") or []
         if not isinstance(distortion, (list, tuple)) or len(distortion) > (5 if model == "pinhole" else 4):
             raise ConfigError(f"{source}: {where}distortion: expected at most {5 if model == 'pinhole' else 4} coefficients for a {model} camera, got {distortion!r}")
         distortion = tuple(_number(value, f"{where}distortion[{k}]", source) for k, value in enumerate(distortion))
         extrinsics = _require(spec, "T_body_camera", where, source)
+        _check_keys(extrinsics, ("translation", "quaternion"), where + "T_body_camera.", source)
         translation = _vector(_require(extrinsics, "translation", where + "T_body_camera.", source), 3, where + "T_body_camera.translation", source)
         quaternion = _vector(_require(extrinsics, "quaternion", where + "T_body_camera.", source), 4, where + "T_body_camera.quaternion", source)
         if abs(np.linalg.norm(quaternion) - 1.0) > 1e-6:
@@ -338,7 +358,7 @@ def load_rig(path: str | Path) -> Rig:
         raise ConfigError(f"{path}: rig file not found")
     try:
         raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as error:
+    except (yaml.YAMLError, UnicodeDecodeError) as error:  # a binary or non-UTF-8 file too
         raise ConfigError(f"{path}: not valid YAML: {error}") from None
     return rig_from_dict(raw, source=str(path))
 

@@ -196,6 +196,6 @@ def load_sim_config(path: str | Path) -> SimulationConfig:
         raise ConfigError(f"{path}: simulation config not found")
     try:
         raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as error:
+    except (yaml.YAMLError, UnicodeDecodeError) as error:  # a binary or non-UTF-8 file too
         raise ConfigError(f"{path}: not valid YAML: {error}") from None
     return sim_config_from_dict(raw, path)

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ampc_vo.errors import ConfigError
+from ampc_vo.errors import ConfigError, OutputError
 from ampc_vo.geometry import invert_pose
 from ampc_vo.kinematics import Trajectory, simulate_kinematics
 from ampc_vo.measurements import MEASUREMENTS_FILE, Measurements, load_measurements, save_measurements
@@ -371,7 +371,10 @@ def simulate_dataset(config: SimulationConfig | str | Path, out_dir: str | Path,
     started = time.perf_counter()
     result = simulate(config)
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OutputError(f"{out_dir}: cannot create the dataset folder ({error.strerror or error}: {error.filename})") from None
     images_written = False
     if with_images:
         render_sequence = _renderer()

@@ -56,6 +56,12 @@ def test_missing_and_invalid_yaml(tmp_path):
     (tmp_path / "x.yaml").write_text("mode: [unclosed\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(tmp_path / "x.yaml")
+    (tmp_path / "binary.yaml").write_bytes(b"\xff\xfe\x00garbage\x89")  # used to be a UnicodeDecodeError traceback
+    with pytest.raises(ConfigError, match="binary.yaml: not valid YAML"):
+        load_config(tmp_path / "binary.yaml")
+    (tmp_path / "list.yaml").write_text("- mode\n- full\n")
+    with pytest.raises(ConfigError, match="list.yaml: top level: expected a mapping"):
+        load_config(tmp_path / "list.yaml")
 
 
 def test_with_mode():

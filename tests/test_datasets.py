@@ -93,6 +93,16 @@ def test_image_size_not_matching_the_rig(tiny_dataset):
         read_dataset(tiny_dataset).load_image(4, "front")
 
 
+def test_a_whole_camera_of_another_size_is_an_error_up_front(tiny_dataset):
+    """Checked on its first readable image (it used to be a warning at every frame and a run
+    without that camera); a corrupt first image is left to the run, which skips it."""
+    (tiny_dataset / "images" / "left" / "000000.png").write_bytes(b"not a png")
+    for frame in range(1, 5):
+        cv2.imwrite(str(tiny_dataset / "images" / "left" / f"{frame:06d}.png"), np.zeros((240, 320), np.uint8))
+    with pytest.raises(DatasetError, match=r"left/000001\.png: image is 320x240 but rig.yaml says camera 'left' is 640x480"):
+        read_dataset(tiny_dataset, allow_missing_images=True)
+
+
 def test_non_increasing_timestamps(tiny_dataset):
     def swap(rows):
         rows[3][1], rows[4][1] = rows[4][1], rows[3][1]
@@ -152,3 +162,25 @@ def test_frames_with_a_non_number(tiny_dataset):
 def test_missing_folder(tmp_path):
     with pytest.raises(DatasetError, match="dataset folder not found"):
         read_dataset(tmp_path / "nothing")
+
+
+def _measurements(timestamps, camera_names):
+    from ampc_vo.measurements import Measurements
+
+    empty = np.zeros(0, np.int64)
+    return Measurements(frame=empty, camera_index=empty, track_id=empty, landmark_id=empty, pixel=np.zeros((0, 2)), pixel_clean=np.zeros((0, 2)),
+                        is_outlier=np.zeros(0, bool), camera_names=tuple(camera_names), landmarks=np.zeros((0, 3)), timestamps=np.asarray(timestamps, float))
+
+
+def test_measurement_timestamps_must_match_the_frames(tmp_path, default_rig, short_trajectory):
+    """The bearing source runs on the measurements' timestamps: ones that disagree with frames.csv
+    gave estimates at other times than the ground truth (a wrong ATE, no error)."""
+    from ampc_vo.measurements import MEASUREMENTS_FILE, save_measurements
+
+    times = short_trajectory.timestamps
+    root = write_dataset(tmp_path / "bearings", default_rig, times, groundtruth=short_trajectory,
+                         measurements=_measurements(times * 2.0, default_rig.camera_names))
+    with pytest.raises(DatasetError, match=r"measurements\.npz: frame 1: timestamp .* does not match frames\.csv timestamp"):
+        read_dataset(root)
+    save_measurements(_measurements(np.arange(len(times), dtype=float), default_rig.camera_names), root / MEASUREMENTS_FILE)  # none in the file
+    np.testing.assert_array_equal(read_dataset(root).measurements.timestamps, times)

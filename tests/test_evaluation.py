@@ -135,3 +135,28 @@ def test_trailer_ate_at_the_axle_sees_hitch_errors():
     rotated = np.array([pose @ make_pose(rot_z(np.radians(1.0)), np.zeros(3)) for pose in truth.T_world_trailer])
     result = evaluate(truth, Trajectory(truth.timestamps, truth.T_world_tractor), Trajectory(truth.timestamps, rotated)).metrics
     assert result.trailer_ate_m == pytest.approx(2 * 8.0 * np.sin(np.radians(0.5)), rel=1e-6)
+
+
+def test_ground_truth_of_a_dataset_with_missing_images(tmp_path):
+    """The evaluation needs no images: a run that skipped a missing image can still be evaluated
+    (load_groundtruth used to refuse the dataset the run had accepted)."""
+    from ampc_vo.datasets.folder import write_dataset
+    from ampc_vo.kinematics import Trajectory as TruthTrajectory
+    from ampc_vo.rig import load_rig
+
+    truth = _truth()
+    rig = load_rig(Path(__file__).resolve().parents[1] / "configs" / "rigs" / "default.yaml")
+    root = write_dataset(tmp_path / "dataset", rig, truth.timestamps, with_images=True,
+                         groundtruth=TruthTrajectory(truth.timestamps, truth.T_world_tractor, truth.T_world_trailer, truth.hitch_angles))
+    (root / "images" / "front").mkdir(parents=True)  # images/ exists, but every listed image is missing
+    loaded = load_groundtruth(root)
+    np.testing.assert_allclose(loaded.T_world_tractor, truth.T_world_tractor, atol=1e-9)
+
+
+def test_a_timing_file_with_a_non_number_is_logged_and_ignored(tmp_path, caplog):
+    from ampc_vo.evaluation import read_seconds_per_frame
+
+    (tmp_path / "timing.json").write_text('{"seconds_per_frame": "fast"}')
+    with caplog.at_level("WARNING"):
+        assert read_seconds_per_frame(tmp_path) is None
+    assert "unreadable timing file" in caplog.text

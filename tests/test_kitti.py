@@ -5,6 +5,7 @@ import logging
 import shutil
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -226,3 +227,42 @@ def test_odometry_survives_bad_kitti_images(tmp_path, caplog):
     assert "unreadable image" in caplog.text and "blank image" in caplog.text and "no frame 19" in caplog.text
     metrics = evaluate_output(tmp_path / "out", load_groundtruth(folder)).metrics
     assert metrics.tractor_ate_m < 0.1 and abs(metrics.sim3_scale - 1.0) < 0.03
+
+
+@needs_clip
+def test_times_poses_and_image_sizes_give_clear_errors(tmp_path):
+    """times.txt with a NaN or two columns, an empty poses.txt, right images of another size (they
+    were skipped at every frame: no stereo scale, a run 25 times too short) and a corrupt first
+    left image (it stopped the run; a corrupt image elsewhere is skipped)."""
+    folder = link_clip(tmp_path / "times")
+    (folder / "times.txt").write_text("\n".join("nan" if k == 5 else f"{k * 0.1:.6f}" for k in range(51)) + "\n")
+    with pytest.raises(DatasetError, match=r"times\.txt: line 6: times must be finite and strictly increasing, got nan"):
+        load_kitti(folder)
+    (folder / "times.txt").write_text("\n".join(f"{k * 0.1:.6f} 1" for k in range(51)) + "\n")
+    with pytest.raises(DatasetError, match="one time .* per line, got 2 numbers"):
+        load_kitti(folder)
+    (folder / "times.txt").write_text("\n".join(f"{k * 0.1:.6f}" for k in range(40)) + "\n")
+    with pytest.raises(DatasetError, match="40 times for 51 frames"):
+        load_kitti(folder)
+    (folder / "times.txt").unlink()
+    (folder / "poses.txt").write_text("")
+    with pytest.raises(DatasetError, match="no poses"):
+        load_kitti(folder)
+
+    folder = tmp_path / "sizes"
+    folder.mkdir()
+    shutil.copy(KITTI_CLIP / "calib.txt", folder / "calib.txt")
+    (folder / "image_l").mkdir()
+    (folder / "image_r").mkdir()
+    for index in range(3):
+        (folder / "image_l" / f"{index:06d}.png").symlink_to(KITTI_CLIP / "image_l" / f"{index:06d}.png")
+        cv2.imwrite(str(folder / "image_r" / f"{index:06d}.png"), np.zeros((185, 613), np.uint8))
+    with pytest.raises(DatasetError, match=r"image_r/000000\.png: image is 613x185 but .*image_l/000000\.png is 1226x370"):
+        load_kitti(folder)
+    for index in range(3):
+        (folder / "image_r" / f"{index:06d}.png").unlink()
+        (folder / "image_r" / f"{index:06d}.png").symlink_to(KITTI_CLIP / "image_r" / f"{index:06d}.png")
+    (folder / "image_l" / "000000.png").unlink()
+    (folder / "image_l" / "000000.png").write_bytes(b"not a png")
+    dataset = load_kitti(folder)
+    assert dataset.rig.camera("left").width == 1226 and dataset.images(0)["left"] is None

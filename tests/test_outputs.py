@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ampc_vo.errors import DatasetError
+from ampc_vo.errors import DatasetError, OutputError
 from ampc_vo.geometry import make_pose, rot_x, rot_z
 from ampc_vo.outputs import HITCH_FILE, TRACTOR_FILE, TRAILER_FILE, OutputWriter, Trajectory, read_hitch, read_tum, write_tum
 
@@ -69,3 +69,41 @@ def test_write_tum_whole(tmp_path):
     poses = _random_poses(4)
     write_tum(tmp_path / "x.tum", Trajectory(np.arange(4.0), poses))
     np.testing.assert_allclose(read_tum(tmp_path / "x.tum").poses, poses, atol=1e-8)
+
+
+def test_output_folder_that_cannot_be_created(tmp_path):
+    """A file where the output folder should be: OutputError naming it, not a FileExistsError traceback."""
+    (tmp_path / "taken").write_text("x")
+    for target in (tmp_path / "taken", tmp_path / "taken" / "run"):
+        with pytest.raises(OutputError, match="cannot write the outputs there"):
+            OutputWriter(target).open()
+
+
+def test_a_last_line_cut_off_by_a_crash_is_ignored_with_a_warning(tmp_path, caplog):
+    """The rows before it are kept (written and flushed one by one); a bad line inside is still an error."""
+    poses = _random_poses(5)
+    path = tmp_path / TRACTOR_FILE
+    write_tum(path, Trajectory(np.arange(5.0), poses))
+    text = path.read_text()
+    path.write_text(text[:-30])
+    with caplog.at_level("WARNING"):
+        assert len(read_tum(path)) == 4
+    assert "incomplete" in caplog.text
+    lines = text.splitlines()
+    path.write_text("\n".join(lines[:3] + [lines[3][:-30]] + lines[4:]) + "\n")
+    with pytest.raises(DatasetError, match="cannot parse"):
+        read_tum(path)
+
+
+def test_repeated_timestamps_and_non_unit_quaternions_are_errors(tmp_path):
+    poses = _random_poses(4)
+    path = tmp_path / TRACTOR_FILE
+    write_tum(path, Trajectory(np.array([0.0, 1.0, 1.0, 2.0]), poses))
+    with pytest.raises(DatasetError, match="not strictly increasing at data row 3"):
+        read_tum(path)
+    write_tum(path, Trajectory(np.arange(4.0), poses))
+    lines = path.read_text().splitlines()
+    lines[2] = " ".join(lines[2].split()[:4] + ["0", "0", "0", "0"])  # used to read as the identity rotation
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match="data row 2 .*not unit length"):
+        read_tum(path)

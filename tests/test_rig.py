@@ -128,6 +128,17 @@ def _delete(path: tuple):
         (_set(("cameras", 0, "fx"), -5.0), "cameras[0].fx", "positive"),
         (_set(("cameras", 1, "name"), "front"), "cameras", "duplicate camera names"),
         (_delete(("bodies", "tractor")), "bodies.tractor", "missing"),
+        # a YAML boolean is not a focal length (it used to read as fx = 1.0)
+        (_set(("cameras", 0, "fx"), True), "cameras[0].fx", "expected a number"),
+        # a fractional image size used to be truncated silently
+        (_set(("cameras", 0, "width"), 640.7), "cameras[0].width", "whole number of pixels"),
+        (_set(("cameras", 1, "cx"), 5000.0), "cameras[1].cx", "principal point must lie in the image"),
+        (_set(("cameras", 1, "cy"), -10.0), "cameras[1].cy", "principal point must lie in the image"),
+        # misspelt keys used to be ignored (here: the distortion would silently be zero)
+        (_set(("cameras", 0, "distorsion"), [0.1]), "cameras[0].distorsion", "unknown key"),
+        (_set(("cameras", 0, "T_body_camera", "rotation"), [0.0, 0.0, 0.0]), "cameras[0].T_body_camera.rotation", "unknown key"),
+        (_set(("bodies", "trailer", "axle"), -8.0), "bodies.trailer.axle", "unknown key"),
+        (_set(("camera",), []), "camera", "unknown key"),
     ],
 )
 def test_rig_validation_errors_name_file_and_field(tmp_path, default_rig, change, field, problem):
@@ -143,6 +154,9 @@ def test_missing_and_invalid_rig_files(tmp_path):
         load_rig(tmp_path / "nope.yaml")
     bad = tmp_path / "bad.yaml"
     bad.write_text("bodies: [unclosed")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_rig(bad)
+    bad.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe")  # an image saved as rig.yaml: was a UnicodeDecodeError traceback
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_rig(bad)
 

@@ -59,3 +59,10 @@ def test_bad_configs_name_file_and_field(tmp_path, changes, drop, field):
 def test_rig_path_relative_to_the_repository(tmp_path):
     path = _write(tmp_path, {"rig": "configs/rigs/default.yaml"})
     assert load_sim_config(path).rig_path.name == "default.yaml"
+
+
+def test_a_binary_file_is_a_config_error(tmp_path):
+    path = tmp_path / "binary.yaml"
+    path.write_bytes(b"\xff\xfe\x00garbage\x89")  # used to be a UnicodeDecodeError traceback
+    with pytest.raises(ConfigError, match="binary.yaml: not valid YAML"):
+        load_sim_config(path)

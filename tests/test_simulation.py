@@ -236,3 +236,13 @@ def test_simulate_sequence_script_writes_a_readable_dataset(tmp_path, repo_root)
     assert not dataset.has_images
     assert dataset.measurements is not None and dataset.measurements.frame_count == len(dataset)
     assert dataset.groundtruth is not None and len(dataset.groundtruth) == len(dataset)
+
+
+def test_an_out_path_that_is_a_file_is_an_output_error(tmp_path, repo_root):
+    """It used to be a FileExistsError traceback after the simulation."""
+    from ampc_vo.errors import OutputError
+    from ampc_vo.simulation import simulate_dataset
+
+    (tmp_path / "taken").write_text("x")
+    with pytest.raises(OutputError, match="taken: cannot create the dataset folder"):
+        simulate_dataset(repo_root / "configs" / "sim" / "ci_short.yaml", tmp_path / "taken", with_images=False)

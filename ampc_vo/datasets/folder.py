@@ -16,6 +16,7 @@ match the frames.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -137,6 +138,20 @@ def _check_size(path: Path, image: np.ndarray, camera) -> None:
         raise DatasetError(f"{path}: image is {image.shape[1]}x{image.shape[0]} but rig.yaml says camera {camera.name!r} is {camera.width}x{camera.height}")
 
 
+def _check_first_image_sizes(root: Path, rig: Rig, camera_names: tuple[str, ...], image_paths: np.ndarray) -> None:
+    """The first readable image of each camera must have the rig's size: a whole camera of the
+    wrong size (another rig.yaml, resized images) is an error up front, not a warning at every frame.
+    Missing or corrupt images are left to the run (it skips them)."""
+    for column, name in enumerate(camera_names):
+        for relative in image_paths[:, column]:
+            try:
+                image = decode_image(root / relative)
+            except DatasetError:
+                continue
+            _check_size(root / relative, image, rig.camera(name))
+            break
+
+
 def decode_image(path: Path) -> np.ndarray:
     """Read an image as grey ``uint8``; a missing or undecodable file raises :class:`DatasetError`."""
     import cv2
@@ -227,15 +242,33 @@ def _read_groundtruth(path: Path, timestamps: np.ndarray) -> Trajectory:
     return Trajectory(values[:, 0].copy(), T_world_tractor, T_world_trailer, values[:, 15].copy())
 
 
-def read_dataset(root: str | Path, check_images: bool = False, load_measurements_file: bool = True, allow_missing_images: bool = False) -> Dataset:
+def _with_frame_timestamps(path: Path, measurements: Measurements, timestamps: np.ndarray) -> Measurements:
+    """The measurements with frames.csv's timestamps (the bearing source runs on the measurements'
+    own ones): taken over when the file has none (frame indices by default), else they must agree."""
+    mismatch = np.flatnonzero(np.abs(measurements.timestamps - timestamps) > TIMESTAMP_TOLERANCE)
+    if not len(mismatch):
+        return measurements
+    if np.array_equal(measurements.timestamps, np.arange(len(timestamps), dtype=float)):
+        LOGGER.info("%s: no timestamps in the file: using those of %s", path, FRAMES_FILE)
+        return dataclasses.replace(measurements, timestamps=timestamps.copy())
+    index = int(mismatch[0])
+    raise DatasetError(f"{path}: frame {index}: timestamp {measurements.timestamps[index]} does not match {FRAMES_FILE} timestamp {timestamps[index]} "
+                       f"({len(mismatch)} frames differ)")
+
+
+def read_dataset(root: str | Path, check_images: bool = False, load_measurements_file: bool = True, allow_missing_images: bool = False,
+                 image_files: bool = True) -> Dataset:
     """Open and validate a dataset folder (module docstring).
 
     Always checks that every listed image exists: a missing one is an error, or with
     ``allow_missing_images`` a warning (the odometry then logs and skips that camera at that frame;
     more than half of them missing is still an error). With ``check_images`` also decodes every image
-    and checks its size against the rig (slow on long sequences). A dataset whose image columns are all empty, or whose ``images/``
+    and checks its size against the rig (slow on long sequences); without, only the first readable
+    image of each camera. A dataset whose image columns are all empty, or whose ``images/``
     folder is absent, has no images (``has_images`` is False, e.g. bearing measurements only);
-    partially empty image columns are an error.
+    partially empty image columns are an error. With ``image_files=False`` the image files are not
+    looked at at all (for readers of the ground truth only, e.g. the evaluation of a run that skipped
+    a missing image).
     """
     root = Path(root)
     if not root.is_dir():
@@ -250,14 +283,14 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
     frames_path = root / FRAMES_FILE
     frames, timestamps, camera_names, image_paths = _read_frames(frames_path, rig)
     empty = image_paths == ""
-    if not np.all(empty) and not (root / IMAGES_DIR).is_dir():
+    if image_files and not np.all(empty) and not (root / IMAGES_DIR).is_dir():
         LOGGER.warning("%s: frames.csv lists images but %s/ is absent: reading as a dataset without images", root, IMAGES_DIR)
         image_paths = np.full(image_paths.shape, "", dtype=object)
         empty = image_paths == ""
     if np.any(empty) and not np.all(empty):
         frame, column = np.argwhere(empty)[0]
         raise DatasetError(f"{frames_path}: line {frame + 2}: image path for camera {camera_names[column]!r} is empty while other frames have images")
-    if not np.all(empty):
+    if image_files and not np.all(empty):
         missing = [path for path in image_paths.ravel() if not (root / path).is_file()]
         if missing:
             message = f"{root / missing[0]}: image file missing (listed in {frames_path}; {len(missing)} missing in total)"
@@ -268,6 +301,8 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
             for row in image_paths:
                 for name, path in zip(camera_names, row):
                     _check_size(root / path, decode_image(root / path), rig.camera(name))
+        else:
+            _check_first_image_sizes(root, rig, camera_names, image_paths)
     groundtruth_path = root / GROUNDTRUTH_FILE
     groundtruth = _read_groundtruth(groundtruth_path, timestamps) if groundtruth_path.is_file() else None
     measurements = None
@@ -276,5 +311,6 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
         measurements = load_measurements(measurements_path, rig)
         if measurements.frame_count != len(timestamps):
             raise DatasetError(f"{measurements_path}: {measurements.frame_count} frames but frames.csv has {len(timestamps)}")
+        measurements = _with_frame_timestamps(measurements_path, measurements, timestamps)
     LOGGER.info("dataset %s: %d frames, cameras %s, images %s", root, len(timestamps), list(camera_names), not np.all(empty))
     return Dataset(root, rig, frames, timestamps, camera_names, image_paths, groundtruth, measurements)

@@ -101,6 +101,8 @@ def read_poses(path: str | Path) -> np.ndarray:
     """(N, 4, 4) poses from a KITTI ``poses.txt`` (one row of 12 numbers per frame)."""
     path = Path(path)
     try:
+        if not path.read_text().strip():
+            raise DatasetError(f"{path}: no poses (empty file)")
         rows = np.loadtxt(path, ndmin=2)
     except (OSError, ValueError) as error:
         raise DatasetError(f"{path}: unreadable poses file ({error})") from None
@@ -125,6 +127,16 @@ def _image_files(root: Path, camera: str) -> tuple[Path, list[Path]]:
                 raise DatasetError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)})")
             return folder, files
     raise DatasetError(f"{root}: no {camera} image folder (expected one of {', '.join(IMAGE_FOLDERS[camera])})")
+
+
+def _first_image_shape(files: list[Path]) -> tuple[tuple[int, int], Path]:
+    """(height, width) of the first readable image and its path (unreadable ones are skipped at
+    run time, so one corrupt first image does not stop the run)."""
+    for path in files:
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if image is not None:
+            return image.shape, path
+    raise DatasetError(f"{files[0].parent}: no readable image")
 
 
 def _intrinsics(projection: np.ndarray) -> tuple[float, float, float, float, np.ndarray]:
@@ -256,10 +268,10 @@ def load_kitti(path: str | Path, options: KittiOptions | None = None) -> KittiDa
     frames = max(counts.values())
     if len(set(counts.values())) > 1:
         logger.warning("%s: cameras have different numbers of images %s; missing frames are skipped for that camera", root, counts)
-    first = cv2.imread(str(image_paths[LEFT][0]), cv2.IMREAD_GRAYSCALE)
-    if first is None:
-        raise DatasetError(f"{image_paths[LEFT][0]}: unreadable image")
-    height, width = first.shape
+    (height, width), left_path = _first_image_shape(image_paths[LEFT])
+    (right_height, right_width), right_path = _first_image_shape(image_paths[RIGHT])
+    if (right_height, right_width) != (height, width):
+        raise DatasetError(f"{right_path}: image is {right_width}x{right_height} but {left_path} is {width}x{height} (a rectified stereo pair has one size)")
     rig = kitti_rig(calibration, width, height, options)
 
     times_path = root / "times.txt"
@@ -268,8 +280,14 @@ def load_kitti(path: str | Path, options: KittiOptions | None = None) -> KittiDa
             timestamps = np.loadtxt(times_path, ndmin=1).astype(float)
         except ValueError as error:
             raise DatasetError(f"{times_path}: unreadable ({error})") from None
-        if len(timestamps) != frames or not np.all(np.diff(timestamps) > 0):
-            raise DatasetError(f"{times_path}: expected {frames} increasing times, got {len(timestamps)}")
+        if timestamps.ndim != 1:
+            raise DatasetError(f"{times_path}: expected one time (seconds) per line, got {timestamps.shape[1]} numbers per line")
+        if len(timestamps) != frames:
+            raise DatasetError(f"{times_path}: {len(timestamps)} times for {frames} frames (the image folders)")
+        bad = np.flatnonzero(~np.isfinite(timestamps[1:]) | ~(np.diff(timestamps) > 0)) + 1
+        if not np.isfinite(timestamps[0]) or len(bad):
+            line = 1 if not np.isfinite(timestamps[0]) else int(bad[0]) + 1
+            raise DatasetError(f"{times_path}: line {line}: times must be finite and strictly increasing, got {timestamps[line - 1]}")
     else:
         timestamps = np.arange(frames) / options.frame_rate_hz
 
