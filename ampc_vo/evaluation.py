@@ -246,17 +246,39 @@ def evaluate(
 
 
 # ---------------------------------------------------------------------- files
-def read_seconds_per_frame(output_dir: str | Path) -> float | None:
-    """``seconds_per_frame`` from ``OUT/timing.json`` (written by the pipeline), or ``None``."""
+def _read_timing(output_dir: str | Path, key: str) -> object:
+    """One entry of ``OUT/timing.json`` (the run summary the pipeline writes), or ``None`` when the
+    file or the entry is absent or unreadable (logged)."""
     path = Path(output_dir) / TIMING_FILE
     if not path.is_file():
         return None
     try:
-        value = json.loads(path.read_text(encoding="utf-8")).get("seconds_per_frame")
-        return None if value is None else float(value)
-    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError, TypeError, ValueError) as error:
+        return json.loads(path.read_text(encoding="utf-8")).get(key)
+    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError) as error:
         logger.warning("%s: unreadable timing file (%s)", path, error)
         return None
+
+
+def read_seconds_per_frame(output_dir: str | Path) -> float | None:
+    """``seconds_per_frame`` from ``OUT/timing.json`` (written by the pipeline), or ``None``."""
+    value = _read_timing(output_dir, "seconds_per_frame")
+    try:
+        return None if value is None else float(value)
+    except (TypeError, ValueError):
+        logger.warning("%s: unreadable timing file (seconds_per_frame %r is not a number)", Path(output_dir) / TIMING_FILE, value)
+        return None
+
+
+def check_run_dataset(output_dir: str | Path, dataset_dir: str | Path) -> bool:
+    """False, with a warning, when ``OUT/timing.json`` says the run read another dataset folder
+    than the one it is being evaluated against (a mix-up gives plausible-looking wrong metrics);
+    True when they agree or the run recorded none."""
+    recorded = _read_timing(output_dir, "dataset")
+    if not isinstance(recorded, str) or Path(recorded).resolve() == Path(dataset_dir).resolve():
+        return True
+    logger.warning("%s was computed from %s, not from %s: the metrics compare it with another sequence's ground truth",
+                   output_dir, recorded, Path(dataset_dir).resolve())
+    return False
 
 
 def evaluate_output(output_dir: str | Path, truth: GroundTruth, seconds_per_frame: float | None = None, max_time_diff: float = 0.01) -> Evaluation:

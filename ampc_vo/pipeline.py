@@ -84,6 +84,7 @@ class RunSummary:
     backend_ms_breakdown: dict = field(default_factory=dict)
     statuses: dict = field(default_factory=dict)
     mode: str = "full"
+    dataset: str | None = None  # the folder the frames came from (absolute; evaluate.py checks it)
 
 
 class OdometryPipeline:
@@ -342,27 +343,31 @@ def wheel_odometry_from_poses(timestamps: np.ndarray, T_world_tractor: np.ndarra
 def run_on_frames(rig: Rig, config: VoConfig, frames: Iterable[FrameObservations], out_dir: str | Path | None = None, total: int | None = None, progress: bool | None = None,
                   wheel_odometry: Callable[[float, float], float] | None = None,
                   on_frame: Callable[[FrameObservations | None, list[KeyframeEstimate]], None] | None = None,
-                  source_seconds: list[float] | None = None) -> tuple[RunSummary, list[KeyframeEstimate]]:
+                  source_seconds: list[float] | None = None, dataset: str | Path | None = None) -> tuple[RunSummary, list[KeyframeEstimate]]:
     """Run the pipeline on any source of frames; with ``out_dir``, write the outputs incrementally,
     ``timing.json`` and the config used (``config.yaml``). ``on_frame``: see
     :meth:`OdometryPipeline.run`; ``source_seconds``: time spent producing each frame (the
-    frontend), filled while ``frames`` is consumed, added to the timing breakdown."""
+    frontend), filled while ``frames`` is consumed, added to the timing breakdown; ``dataset``:
+    the folder the frames come from, recorded in the summary."""
     with_trailer = rig.has_trailer and config.mode != "tractor_only"
     if out_dir is None:
         pipeline = OdometryPipeline(rig, config, wheel_odometry=wheel_odometry)
-        return _with_source_time(pipeline.run(frames, total, progress, on_frame), source_seconds), pipeline.estimates
+        return _with_source(pipeline.run(frames, total, progress, on_frame), source_seconds, dataset), pipeline.estimates
     out_dir = Path(out_dir)
     with OutputWriter(out_dir, with_trailer=with_trailer) as writer:  # creates out_dir, or OutputError
         save_config(config, out_dir / "config.yaml")
         pipeline = OdometryPipeline(rig, config, writer, wheel_odometry=wheel_odometry)
-        summary = _with_source_time(pipeline.run(frames, total, progress, on_frame), source_seconds)
+        summary = _with_source(pipeline.run(frames, total, progress, on_frame), source_seconds, dataset)
     if config.output.write_timing:
         (out_dir / TIMING_FILE).write_text(json.dumps(asdict(summary), indent=2) + "\n", encoding="utf-8")
     return summary, pipeline.estimates
 
 
-def _with_source_time(summary: RunSummary, source_seconds: list[float] | None) -> RunSummary:
-    """``summary`` with the median time per frame of the measurement source as ``frontend`` (ms)."""
+def _with_source(summary: RunSummary, source_seconds: list[float] | None, dataset: str | Path | None) -> RunSummary:
+    """``summary`` with the dataset folder and the median time per frame of the measurement source
+    as ``frontend`` (ms)."""
+    if dataset is not None:
+        summary = dataclasses.replace(summary, dataset=str(Path(dataset).resolve()))
     if not source_seconds:
         return summary
     breakdown = {"frontend": float(np.median(source_seconds) * 1e3), **summary.backend_ms_breakdown}

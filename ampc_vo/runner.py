@@ -91,7 +91,7 @@ def run_sequence(sequence: Sequence, config: VoConfig, out_dir: str | Path, reru
 
     try:
         return run_on_frames(sequence.rig, config, timer.wrap(sequence.steps(), log_step), out_dir, len(sequence), progress,
-                             wheel_odometry, on_frame=log_published, source_seconds=timer.seconds)
+                             wheel_odometry, on_frame=log_published, source_seconds=timer.seconds, dataset=sequence.path)
     finally:
         if recorder is not None:
             recorder.close()

@@ -16,7 +16,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
 from ampc_vo.errors import AmpcError  # noqa: E402
-from ampc_vo.evaluation import METRICS_FILE, PLOT_FILE, evaluate_output, load_groundtruth, plot_evaluation, write_metrics  # noqa: E402
+from ampc_vo.evaluation import METRICS_FILE, PLOT_FILE, check_run_dataset, evaluate_output, load_groundtruth, plot_evaluation, write_metrics  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -31,6 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         truth = load_groundtruth(args.dataset)
+        check_run_dataset(args.out, args.dataset)
         evaluation = evaluate_output(args.out, truth, args.seconds_per_frame, args.max_time_diff)
     except AmpcError as error:
         print(f"error: {error}", file=sys.stderr)

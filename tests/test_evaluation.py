@@ -160,3 +160,21 @@ def test_a_timing_file_with_a_non_number_is_logged_and_ignored(tmp_path, caplog)
     with caplog.at_level("WARNING"):
         assert read_seconds_per_frame(tmp_path) is None
     assert "unreadable timing file" in caplog.text
+
+
+def test_a_run_evaluated_against_another_dataset_is_flagged(tmp_path, caplog):
+    """timing.json records the dataset folder of the run; evaluate.py warns about a mix-up."""
+    import json
+
+    from ampc_vo.evaluation import check_run_dataset
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    out = tmp_path / "out"
+    out.mkdir()
+    assert check_run_dataset(out, tmp_path / "a")  # no timing.json: nothing to check
+    (out / "timing.json").write_text(json.dumps({"dataset": str((tmp_path / "a").resolve())}))
+    assert check_run_dataset(out, tmp_path / "b" / ".." / "a")
+    with caplog.at_level("WARNING"):
+        assert not check_run_dataset(out, tmp_path / "b")
+    assert "was computed from" in caplog.text and str(tmp_path / "b") in caplog.text

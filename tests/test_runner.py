@@ -183,3 +183,11 @@ def test_fisheye_image_pipeline_meets_the_accuracy_of_issue_7(tmp_path):
     assert metrics.tractor_ate_m <= 0.02 * metrics.distance_m, metrics
     assert metrics.hitch_rmse_deg <= 0.5, metrics
     assert metrics.hitch_max_deg <= 1.5, metrics
+
+
+def test_the_run_summary_records_its_dataset(image_run):
+    import json
+
+    sequence, summary, _, out = image_run
+    assert summary.dataset == str(Path(sequence.path).resolve())
+    assert json.loads((out / "timing.json").read_text())["dataset"] == summary.dataset
