@@ -176,6 +176,22 @@ class ScaleConfig:
 
 
 @dataclass(frozen=True)
+class RecordingConfig:
+    """What a Rerun recording (``run_odometry.py --rerun``) holds: about 70 kB per 640x480 image at
+    quality 85, so a long run with 4 cameras wants ``image_every`` > 1 or a lower quality."""
+
+    image_every: int = 1          # log camera images every N-th frame (0: never; features are logged every frame)
+    jpeg_quality: int = 85        # JPEG quality of the logged images (1-100)
+    trajectory_every: int = 10    # re-log the trajectory line strips every N-th frame
+
+    def validate(self, where: str) -> None:
+        _at_least(self.image_every, 0, where + "image_every")
+        _at_least(self.trajectory_every, 0, where + "trajectory_every")
+        if not 1 <= self.jpeg_quality <= 100:
+            raise _error(where + "jpeg_quality", f"must be in [1, 100], got {self.jpeg_quality}")
+
+
+@dataclass(frozen=True)
 class OutputConfig:
     """What the pipeline writes and logs."""
 
@@ -206,6 +222,7 @@ class VoConfig:
     smoother: SmootherConfig = field(default_factory=SmootherConfig)
     scale: ScaleConfig = field(default_factory=ScaleConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
+    rerun: RecordingConfig = field(default_factory=RecordingConfig)
     frontend: TrackerConfig = field(default_factory=TrackerConfig)   # validated on construction
     stereo: StereoConfig = field(default_factory=StereoConfig)        # overlapping pairs (KITTI)
 
@@ -217,7 +234,7 @@ class VoConfig:
             raise _error(where + "frontend_worker", f"unknown frontend_worker {self.frontend_worker!r} (expected one of {FRONTEND_WORKERS})")
         if self.source not in SOURCES:
             raise _error(where + "source", f"unknown source {self.source!r} (expected one of {SOURCES})")
-        for section in ("keyframes", "ransac", "smoother", "scale", "output"):
+        for section in ("keyframes", "ransac", "smoother", "scale", "output", "rerun"):
             getattr(self, section).validate(f"{where}{section}.")
 
     @property

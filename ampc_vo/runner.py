@@ -10,6 +10,7 @@ go into an ``.rrd`` file.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -67,9 +68,9 @@ def run_sequence(sequence: Sequence, config: VoConfig, out_dir: str | Path, reru
     timer = SourceTimer([])
     recorder = None
     if rerun_path is not None:
-        from ampc_vo.viz import RerunLogger
+        from ampc_vo.viz import RerunLogger, VizConfig
 
-        recorder = RerunLogger(sequence.rig, rerun_path)
+        recorder = RerunLogger(sequence.rig, rerun_path, VizConfig(**dataclasses.asdict(config.rerun)))
 
     def log_step(step: FrameStep) -> None:
         if recorder is None:

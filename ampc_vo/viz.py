@@ -26,6 +26,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from ampc_vo.config import RecordingConfig
 from ampc_vo.errors import AmpcError
 from ampc_vo.geometry import quat_xyzw_from_rotation
 from ampc_vo.observations import FrameObservations
@@ -42,12 +43,10 @@ _CHUNK_LINE = re.compile(r"^Chunk\(.*\) with (\d+) rows .* - (/\S*) - data colum
 
 
 @dataclass(frozen=True)
-class VizConfig:
-    """What to log and how. Box geometry is in body coordinates (metres; origin at the hitch)."""
+class VizConfig(RecordingConfig):
+    """What to log (:class:`~ampc_vo.config.RecordingConfig`, the VO config's ``rerun`` section) and
+    how it looks. Box geometry is in body coordinates (metres; origin at the hitch)."""
 
-    jpeg_quality: int = 85
-    image_every: int = 1                 # log camera images every N-th frame (0: never)
-    trajectory_every: int = 10           # re-log the trajectory line strips every N-th frame
     frustum_distance_m: float = 1.0      # drawn depth of the camera frusta
     tractor_box_center: tuple[float, float, float] = (2.5, 0.0, 1.6)
     tractor_box_half_size: tuple[float, float, float] = (3.3, 1.25, 1.6)

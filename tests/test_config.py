@@ -38,6 +38,9 @@ def test_partial_override_and_round_trip(tmp_path):
         ({"smoother": {"marginals": "yes"}}, "smoother.marginals"),
         ({"output": {"log_level": "LOUD"}}, "output.log_level"),
         ({"keyframes": [1, 2]}, "keyframes"),
+        ({"rerun": {"jpeg_quality": 0}}, "rerun.jpeg_quality"),
+        ({"rerun": {"image_every": -1}}, "rerun.image_every"),
+        ({"frontend_worker": "gpu"}, "frontend_worker"),
     ],
 )
 def test_errors_name_file_and_field(tmp_path, raw, field):

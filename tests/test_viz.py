@@ -111,3 +111,27 @@ def test_wrong_inlier_mask_is_a_clear_error(tmp_path):
         observations = FrameObservations(0, 0.0, {"front": CameraObservations("front", np.arange(2), np.zeros((2, 2)), np.tile([0.0, 0.0, 1.0], (2, 1)))})
         with pytest.raises(AmpcError, match="inlier mask"):
             viz.log_frame(0, 0.0, observations=observations, inliers={"front": np.ones(3, bool)})
+
+
+def test_the_vo_configs_rerun_section_sets_what_is_logged(tmp_path):
+    """``rerun.image_every`` of the VO config reaches the logger (run_odometry --rerun): the bytes
+    the images add to the recording follow how many frames log them (5 of 5, 3 of 5, none)."""
+    import dataclasses
+
+    from ampc_vo.config import config_from_dict
+
+    rng = np.random.default_rng(0)
+    frames = [{camera.name: rng.integers(0, 255, (camera.height, camera.width), dtype=np.uint8) for camera in small_rig().cameras} for _ in range(5)]
+    sizes = {}
+    for every in (1, 2, 0):
+        config = config_from_dict({"rerun": {"image_every": every, "jpeg_quality": 90}})
+        viz_config = VizConfig(**dataclasses.asdict(config.rerun))
+        assert viz_config.image_every == every and viz_config.jpeg_quality == 90
+        path = tmp_path / f"every{every}.rrd"
+        with RerunLogger(small_rig(), path, viz_config) as viz:
+            for frame, images in enumerate(frames):
+                viz.log_frame(frame, 0.1 * frame, T_world_tractor=np.eye(4), images=images)
+        sizes[every] = path.stat().st_size
+    all_images, every_other = sizes[1] - sizes[0], sizes[2] - sizes[0]
+    assert all_images > 5000, sizes  # 10 noisy JPEGs of 64x48
+    assert 0.45 < every_other / all_images < 0.75, sizes
