@@ -27,6 +27,20 @@ Writing the left side as ``sqrt(1 + (kappa s_A)^2) sin(theta + atan(kappa s_A))`
 which exists when the hitch radius ``sqrt(R^2 + s_A^2) >= s_B``. The same equation follows from
 ``theta' = 0`` in the ODE above (``psi_B' = psi_A' = v kappa``), and for forward driving this
 equilibrium is stable (the trailer "follows"), so a constant-curvature run converges to it.
+
+**Tyre slip** (optional, ``slip`` in rad per m/s^2; 0 = the ideal kinematics above). In a turn
+the tyres of a rigid axle generate their lateral force at a slip angle: the axle's velocity points
+outward of its heading by ``beta = slip * a_lat`` (a linear tyre model; ``a_lat`` is the axle's
+signed lateral acceleration). This is what breaks the non-holonomic constraint (NH) of DESIGN 2 on
+real vehicles (DESIGN: up to ~1.5 deg in hard cornering). The route then describes the *path* of the
+tractor axle (its velocity direction ``phi``, ``phi' = v kappa``); the heading is
+``psi_A = phi + slip v^2 kappa`` and
+
+    psi_A' = v kappa + slip v d(v^2 kappa)/ds
+    psi_B' = v_hitch . n(psi_B + beta_B) / (s_B cos beta_B),   beta_B = -slip |v_B| psi_B'
+
+(the trailer axle's velocity is along ``psi_B + beta_B``; solved by fixed-point iteration), with
+``v_hitch = v u(phi) - s_A psi_A' n(psi_A)``. With ``slip = 0`` both reduce to the ODE above.
 """
 from __future__ import annotations
 
@@ -96,14 +110,48 @@ def _derivative(state: tuple[float, ...], route: Route, s_a: float, s_b: float) 
     return (v * math.cos(psi_a), v * math.sin(psi_a), yaw_rate_a, yaw_rate_b - yaw_rate_a, v)
 
 
-def _rk4_step(state: tuple[float, ...], dt: float, route: Route, s_a: float, s_b: float) -> tuple[float, ...]:
-    """One classical Runge-Kutta step of :func:`_derivative` (unrolled: this is the hot loop)."""
+_SLIP_DIFFERENCE_M = 0.05  # arc-length step of the central difference d(v^2 kappa)/ds
+_SLIP_ITERATIONS = 4       # fixed-point iterations of the trailer's slip angle (|beta_B| << 1: converges fast)
+
+
+def _lateral_acceleration(route: Route, s: float) -> float:
+    """``v^2 kappa`` of the tractor axle's path at arc length ``s`` (m/s^2, signed: + in a left turn)."""
+    v, curvature = route.profile(max(s, 0.0))
+    return v * v * curvature
+
+
+def _derivative_with_slip(state: tuple[float, ...], route: Route, s_a: float, s_b: float, slip: float) -> tuple[float, ...]:
+    """Time derivative of the state (x, y, phi, theta, s) with tyre slip (module docstring); ``phi``
+    is the direction of the tractor axle's velocity, not its heading."""
+    _, _, phi, theta, s = state
+    v, curvature = route.profile(s)
+    step = _SLIP_DIFFERENCE_M
+    lateral_rate = (_lateral_acceleration(route, s + step) - _lateral_acceleration(route, s - step)) / (2.0 * step)
+    yaw_rate_a = v * curvature + slip * v * lateral_rate
+    psi_a = phi + slip * v * v * curvature
+    psi_b = psi_a + theta
+    hitch_vx = v * math.cos(phi) + s_a * yaw_rate_a * math.sin(psi_a)
+    hitch_vy = v * math.sin(phi) - s_a * yaw_rate_a * math.cos(psi_a)
+    beta_b = 0.0
+    for _ in range(_SLIP_ITERATIONS):
+        direction = psi_b + beta_b
+        yaw_rate_b = (-hitch_vx * math.sin(direction) + hitch_vy * math.cos(direction)) / (s_b * math.cos(beta_b))
+        # trailer axle velocity v_hitch - s_B psi_B' n(psi_B)
+        axle_speed = math.hypot(hitch_vx + s_b * yaw_rate_b * math.sin(psi_b), hitch_vy - s_b * yaw_rate_b * math.cos(psi_b))
+        beta_b = -slip * axle_speed * yaw_rate_b
+    return (v * math.cos(phi), v * math.sin(phi), v * curvature, yaw_rate_b - yaw_rate_a, v)
+
+
+def _rk4_step(state: tuple[float, ...], dt: float, route: Route, s_a: float, s_b: float, slip: float = 0.0) -> tuple[float, ...]:
+    """One classical Runge-Kutta step of :func:`_derivative` (unrolled: this is the hot loop), or of
+    :func:`_derivative_with_slip` when ``slip`` > 0."""
     x, y, psi, theta, s = state
     half = 0.5 * dt
-    a1, b1, c1, d1, e1 = _derivative(state, route, s_a, s_b)
-    a2, b2, c2, d2, e2 = _derivative((x + half * a1, y + half * b1, psi + half * c1, theta + half * d1, s + half * e1), route, s_a, s_b)
-    a3, b3, c3, d3, e3 = _derivative((x + half * a2, y + half * b2, psi + half * c2, theta + half * d2, s + half * e2), route, s_a, s_b)
-    a4, b4, c4, d4, e4 = _derivative((x + dt * a3, y + dt * b3, psi + dt * c3, theta + dt * d3, s + dt * e3), route, s_a, s_b)
+    derivative, extra = (_derivative_with_slip, (route, s_a, s_b, slip)) if slip > 0.0 else (_derivative, (route, s_a, s_b))
+    a1, b1, c1, d1, e1 = derivative(state, *extra)
+    a2, b2, c2, d2, e2 = derivative((x + half * a1, y + half * b1, psi + half * c1, theta + half * d1, s + half * e1), *extra)
+    a3, b3, c3, d3, e3 = derivative((x + half * a2, y + half * b2, psi + half * c2, theta + half * d2, s + half * e2), *extra)
+    a4, b4, c4, d4, e4 = derivative((x + dt * a3, y + dt * b3, psi + dt * c3, theta + dt * d3, s + dt * e3), *extra)
     sixth = dt / 6.0
     return (
         x + sixth * (a1 + 2.0 * a2 + 2.0 * a3 + a4),
@@ -147,8 +195,10 @@ def simulate_kinematics(
     duration: float | None = None,
     start_time: float = 0.0,
     integration_rate_hz: float = INTEGRATION_RATE_HZ,
+    slip: float = 0.0,
 ) -> Trajectory:
     """Integrate the tractor-trailer ODE (module docstring) with RK4 and sample at ``rate_hz``.
+    ``slip``: tyre slip angle per lateral acceleration (rad per m/s^2; 0: ideal rolling, NH exact).
 
     The tractor starts with its hitch at the world origin heading along +x. Without ``duration``
     the run ends at the first frame at or past the route's end. At a ``stop`` segment the state is
@@ -161,6 +211,8 @@ def simulate_kinematics(
         raise ConfigError(f"trailer axle_x must be negative (behind the hitch), got {trailer_axle_x}")
     if not route.segments:
         raise ConfigError("route has no segments")
+    if not 0.0 <= slip < 0.1:
+        raise ConfigError(f"tyre slip must be in [0, 0.1) rad per m/s^2, got {slip}")
     s_a, s_b = float(tractor_axle_x), -float(trailer_axle_x)
     frame_period = 1.0 / rate_hz
     substeps = max(int(math.ceil(integration_rate_hz * frame_period - 1e-9)), 1)
@@ -184,7 +236,7 @@ def simulate_kinematics(
             if hold_steps > 0:
                 hold_steps -= 1
                 continue
-            state = _rk4_step(state, dt, route, s_a, s_b)
+            state = _rk4_step(state, dt, route, s_a, s_b, slip)
             if pending_stops and state[4] >= pending_stops[0][0]:
                 hold_steps = int(round(pending_stops.pop(0)[1] / dt))
         states.append(state)
@@ -197,9 +249,10 @@ def simulate_kinematics(
                 "the route is too tight for this trailer"
             )
     array = np.asarray(states)
-    T_world_tractor, T_world_trailer = poses_from_states(array[:, :2], array[:, 2], array[:, 3], tractor_axle_x)
     speed = np.where(standing, 0.0, [route.speed(s) for s in array[:, 4]])
     curvature = np.array([route.curvature(s) for s in array[:, 4]])
+    heading = array[:, 2] + slip * speed * speed * curvature  # with slip the state holds the path direction
+    T_world_tractor, T_world_trailer = poses_from_states(array[:, :2], heading, array[:, 3], tractor_axle_x)
     timestamps = start_time + np.arange(len(states)) * frame_period
     LOGGER.info("simulated %d frames (%.1f s, %.1f m)", len(states), timestamps[-1] - timestamps[0], array[-1, 4])
     return Trajectory(timestamps, T_world_tractor, T_world_trailer, array[:, 3].copy(), speed, curvature, array[:, 4].copy())

@@ -7,6 +7,7 @@ Example::
     speed: 8.0                         # m/s, default speed of every segment
     duration: null                     # seconds; null = drive the route to its end
     initial_hitch_angle_deg: 0
+    tyre_slip_deg_per_mps2: 0          # slip angle of each axle per lateral acceleration (0: ideal rolling)
     seed: 1
     pixel_noise_px: 0.5
     outlier_fraction: 0.1
@@ -23,6 +24,7 @@ Every problem raises :class:`ConfigError` naming the file and the field.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -66,6 +68,7 @@ class SimulationConfig:
     speed: float = 8.0
     duration: float | None = None
     initial_hitch_angle: float = 0.0                 # radians (YAML: initial_hitch_angle_deg)
+    tyre_slip: float = 0.0                           # rad per m/s^2 of lateral acceleration (YAML: tyre_slip_deg_per_mps2)
     seed: int = 0
     pixel_noise_px: float = 0.5
     outlier_fraction: float = 0.1
@@ -80,7 +83,7 @@ class SimulationConfig:
 
 
 _TOP_LEVEL = {
-    "rig", "rate_hz", "speed", "duration", "initial_hitch_angle_deg", "seed", "pixel_noise_px", "outlier_fraction",
+    "rig", "rate_hz", "speed", "duration", "initial_hitch_angle_deg", "tyre_slip_deg_per_mps2", "seed", "pixel_noise_px", "outlier_fraction",
     "max_range_m", "min_range_m", "max_tracks_per_camera", "segments", "scene", "render", "speed_ramp_m", "description", "name",
 }
 
@@ -169,6 +172,7 @@ def sim_config_from_dict(raw: Any, config_path: Path) -> SimulationConfig:
         speed=speed,
         duration=duration,
         initial_hitch_angle=_float(raw, "initial_hitch_angle_deg", source, 0.0, minimum=-80.0, maximum=80.0) * 3.141592653589793 / 180.0,
+        tyre_slip=math.radians(_float(raw, "tyre_slip_deg_per_mps2", source, 0.0, minimum=0.0, maximum=2.0)),
         seed=seed,
         pixel_noise_px=_float(raw, "pixel_noise_px", source, 0.5, minimum=0.0),
         outlier_fraction=_float(raw, "outlier_fraction", source, 0.1, minimum=0.0, maximum=1.0),

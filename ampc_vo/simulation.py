@@ -345,7 +345,7 @@ def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> S
         raise ConfigError(f"{config.rig_path}: the simulator needs a rig with a trailer body")
     rng = np.random.default_rng(config.seed)
     trajectory = simulate_kinematics(config.route, config.rate_hz, rig.axle_x("tractor"), rig.axle_x("trailer"),
-                                     config.initial_hitch_angle, config.duration)
+                                     config.initial_hitch_angle, config.duration, slip=config.tyre_slip)
     scene = build_scene(trajectory, rng, config.scene)
     landmarks = sample_landmarks(scene, trajectory, config.scene, rng)
     measurements = simulate_measurements(trajectory, rig, landmarks, scene, config, rng)

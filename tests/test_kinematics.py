@@ -124,3 +124,44 @@ def test_stop_segment_holds_the_vehicle_still_for_its_duration():
     assert np.ptp(trajectory.hitch_angle[1:][still]) == 0.0          # the hitch does not move either
     assert abs(trajectory.arc_length[np.flatnonzero(still)[0] + 1] - 40.0) < 0.01
     assert np.max(steps) <= 0.8 + 1e-9 and trajectory.arc_length[-1] >= route.length
+
+
+def _slip_angles(trajectory, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Angle (rad) from each axle's heading to its velocity (central differences), and the trailer
+    axle's lateral acceleration estimate |v_B| psi_B' (frames 1..F-2)."""
+    tractor, trailer = axle_positions(trajectory, S_A, TRAILER_AXLE_X)
+    angles = []
+    for positions, poses in ((tractor, trajectory.T_world_tractor), (trailer, trajectory.T_world_trailer)):
+        velocity = (positions[2:] - positions[:-2]) * rate_hz / 2.0
+        heading = np.array([yaw_of(pose) for pose in poses[1:-1]])
+        angles.append(wrap_angle(np.arctan2(velocity[:, 1], velocity[:, 0]) - heading))
+    trailer_yaw = np.unwrap([yaw_of(pose) for pose in trajectory.T_world_trailer])
+    trailer_speed = np.linalg.norm(trailer[2:] - trailer[:-2], axis=1) * rate_hz / 2.0
+    trailer_lateral = trailer_speed * (trailer_yaw[2:] - trailer_yaw[:-2]) * rate_hz / 2.0
+    return angles[0], angles[1], trailer_lateral
+
+
+@pytest.mark.parametrize("radius", [20.0, -30.0])
+def test_tyre_slip_turns_each_axles_velocity_outward_by_slip_times_lateral_acceleration(radius):
+    """Linear tyre model (module docstring): in a steady turn the tractor axle's velocity points
+    outward of its heading by slip * v^2 / R, the trailer axle's by slip * |v_B| psi_B'; the
+    trailer still follows (the hitch angle settles) and the route is the axle's path."""
+    slip, speed, rate = math.radians(0.5), 8.0, 100.0  # 0.5 deg per m/s^2: 1.6 deg at 3.2 m/s^2
+    route = route_from_list([{"type": "turn", "angle_deg": math.copysign(300.0, radius), "radius": abs(radius)}], speed, "test")
+    trajectory = simulate_kinematics(route, rate, S_A, TRAILER_AXLE_X, duration=route.length / speed - 1.0, slip=slip)
+    tractor_angle, trailer_angle, trailer_lateral = _slip_angles(trajectory, rate)
+    settled = slice(len(tractor_angle) // 2, None)
+    expected_tractor = -slip * speed**2 / radius
+    assert np.allclose(tractor_angle[settled], expected_tractor, rtol=0.01, atol=1e-5)
+    assert abs(expected_tractor) > math.radians(1.0)
+    assert np.allclose(trailer_angle[settled], -slip * trailer_lateral[settled], rtol=0.02, atol=1e-5)
+    assert np.ptp(trajectory.hitch_angle[-200:]) < 1e-4  # settles (the trailer follows)
+    ideal = simulate_kinematics(route, rate, S_A, TRAILER_AXLE_X, duration=route.length / speed - 1.0)
+    _, ideal_trailer_angle, _ = _slip_angles(ideal, rate)
+    assert np.max(np.abs(ideal_trailer_angle)) < 1e-4  # no slip: NH holds
+
+
+def test_tyre_slip_must_be_small_and_non_negative():
+    route = route_from_list([{"type": "straight", "length": 10}], 5.0, "test")
+    with pytest.raises(ConfigError, match="tyre slip"):
+        simulate_kinematics(route, 10.0, S_A, TRAILER_AXLE_X, slip=-0.01)

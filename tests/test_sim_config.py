@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -47,6 +48,7 @@ def _write(tmp_path: Path, changes: dict, drop: tuple = ()) -> Path:
         ({"scene": {"facade_distance": [5]}}, (), "scene.facade_distance"),
         ({"scene": {"tree_density": 1}}, (), "scene: unknown field"),
         ({"speeed": 3}, (), "unknown field(s) ['speeed']"),
+        ({"tyre_slip_deg_per_mps2": -0.1}, (), "tyre_slip_deg_per_mps2"),
     ],
 )
 def test_bad_configs_name_file_and_field(tmp_path, changes, drop, field):
@@ -66,3 +68,22 @@ def test_a_binary_file_is_a_config_error(tmp_path):
     path.write_bytes(b"\xff\xfe\x00garbage\x89")  # used to be a UnicodeDecodeError traceback
     with pytest.raises(ConfigError, match="binary.yaml: not valid YAML"):
         load_sim_config(path)
+
+
+def test_tyre_slip_reaches_the_simulated_trajectory(tmp_path):
+    """``tyre_slip_deg_per_mps2`` (degrees per m/s^2) is read in radians and drives the kinematics."""
+    import math
+
+    from ampc_vo.simulation import simulate
+
+    assert load_sim_config(SIM_DIR / "demo.yaml").tyre_slip == 0.0
+    slipping = load_sim_config(_write(tmp_path, {"tyre_slip_deg_per_mps2": 0.5}))
+    assert slipping.tyre_slip == pytest.approx(math.radians(0.5))
+    ideal = simulate(SIM_DIR / "ci_short.yaml").trajectory
+    import dataclasses
+
+    slipped = simulate(dataclasses.replace(load_sim_config(SIM_DIR / "ci_short.yaml"), tyre_slip=math.radians(0.5))).trajectory
+    from ampc_vo.geometry import yaw_of
+
+    heading_change = max(abs(yaw_of(a) - yaw_of(b)) for a, b in zip(slipped.T_world_tractor, ideal.T_world_tractor))
+    assert math.radians(0.5) < heading_change < math.radians(3.0)  # the same axle path, turned headings in the turn
