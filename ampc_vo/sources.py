@@ -94,8 +94,8 @@ def _pipelined(frames: range, produce: Callable[[int], FrameStep], in_thread: bo
 
 def _frontend_stream(make_steps: Callable[..., Iterator[FrameStep]], dataset: object, rig: Rig, config: VoConfig,
                      *more: object) -> Iterator[FrameStep]:
-    """``make_steps(dataset, rig, config, *more)`` (``more``: the frames, then any stereo pairs), in a worker process when
-    ``config.frontend_worker`` is ``process`` (:func:`ampc_vo.worker.stream_in_process`: the
+    """``make_steps(dataset, rig, config, *more)`` (``more``: the frames, then any stereo pairs), in
+    a worker process when ``config.frontend_worker`` is ``process`` (:func:`ampc_vo.worker.stream_in_process`: the
     frontend then shares no GIL with the backend). The simulated bearings a dataset may carry
     stay here (the frontend does not need them)."""
     if config.frontend_worker != "process":
@@ -105,9 +105,9 @@ def _frontend_stream(make_steps: Callable[..., Iterator[FrameStep]], dataset: ob
     return stream_in_process(make_steps, (dataset, rig, dataclasses.replace(config, frontend_worker="none"), *more))
 
 
-def image_steps(dataset: object, rig: Rig, config: VoConfig, frames: range | None = None,
+def image_steps(dataset: object, rig: Rig, config: VoConfig, frames: range,
                 stereo_pairs: tuple[tuple[str, str], ...] = ()) -> Iterator[FrameStep]:
-    """The image frontend over the ``frames`` (default: all) of ``dataset`` (``camera_names``,
+    """The image frontend over the ``frames`` of ``dataset`` (``camera_names``,
     ``timestamps``, ``load_image``); a missing or corrupt image is logged and that camera re-initialises. With
     ``config.threads`` > 1 cameras are tracked in parallel; with ``config.frontend_worker`` thread
     the next frame is decoded and tracked while the backend works on this one (:func:`_pipelined`;
@@ -120,12 +120,12 @@ def image_steps(dataset: object, rig: Rig, config: VoConfig, frames: range | Non
             result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), images)
             return FrameStep(result.observations, images, result, time.perf_counter() - started)
 
-        yield from _pipelined(range(len(dataset)) if frames is None else frames, produce, config.frontend_worker == "thread")
+        yield from _pipelined(frames, produce, config.frontend_worker == "thread")
 
 
-def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, frames: range | None,
+def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, frames: range,
                        stereo_pairs: tuple[tuple[str, str], ...]) -> Iterator[FrameStep]:
-    """The image frontend over the ``frames`` (default: all) of a rig with overlapping pairs
+    """The image frontend over the ``frames`` of a rig with overlapping pairs
     (KITTI): the first camera of each pair
     (and any camera in no pair) is tracked; the second camera is not tracked on its own, its
     observations are the first camera's features found in its image (:func:`match_stereo_image`),
@@ -147,7 +147,7 @@ def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, frames: rang
             observations = observations_with_stereo(result.observations, stereo)
             return FrameStep(observations, images, FrontendResult(observations, result.reports, stereo), time.perf_counter() - started)
 
-        yield from _pipelined(range(len(dataset)) if frames is None else frames, produce, config.frontend_worker == "thread")
+        yield from _pipelined(frames, produce, config.frontend_worker == "thread")
 
 
 def _bearing_steps(measurements: object, rig: Rig, frames: range) -> Iterator[FrameStep]:
