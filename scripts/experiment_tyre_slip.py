@@ -15,7 +15,6 @@ import argparse
 import dataclasses
 import math
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -24,10 +23,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ampc_vo.config import load_config  # noqa: E402
 from ampc_vo.errors import AmpcError  # noqa: E402
-from ampc_vo.evaluation import GroundTruth, evaluate_output  # noqa: E402
+from ampc_vo.experiments import score_on_simulation  # noqa: E402
 from ampc_vo.geometry import wrap_angle, yaw_of  # noqa: E402
 from ampc_vo.kinematics import Trajectory, axle_positions  # noqa: E402
-from ampc_vo.pipeline import run_on_frames  # noqa: E402
 from ampc_vo.sim_config import load_sim_config  # noqa: E402
 from ampc_vo.simulation import simulate  # noqa: E402
 
@@ -45,14 +43,9 @@ def largest_axle_slip_deg(trajectory: Trajectory, tractor_axle_x: float, trailer
 
 
 def run_case(route: str, slip_deg: float, config) -> dict:
-    sim = dataclasses.replace(load_sim_config(ROUTES / f"{route}.yaml"), tyre_slip=math.radians(slip_deg))
-    result = simulate(sim)
-    truth = result.trajectory
-    ground_truth = GroundTruth(truth.timestamps, truth.T_world_tractor, truth.T_world_trailer, truth.hitch_angle, result.rig.axle_x("trailer"))
-    with tempfile.TemporaryDirectory() as out:
-        run_on_frames(result.rig, config, result.measurements.frames(result.rig), out, len(truth), progress=False)
-        metrics = evaluate_output(out, ground_truth).metrics
-    return {"route": route, "slip": slip_deg, "largest_slip_deg": largest_axle_slip_deg(truth, result.rig.axle_x("tractor"), result.rig.axle_x("trailer")),
+    result = simulate(dataclasses.replace(load_sim_config(ROUTES / f"{route}.yaml"), tyre_slip=math.radians(slip_deg)))
+    metrics = score_on_simulation(result, config)
+    return {"route": route, "slip": slip_deg, "largest_slip_deg": largest_axle_slip_deg(result.trajectory, result.rig.axle_x("tractor"), result.rig.axle_x("trailer")),
             "ate_m": metrics.tractor_ate_m, "ate_percent": 100.0 * metrics.tractor_ate_m / metrics.distance_m,
             "hitch_rmse_deg": metrics.hitch_rmse_deg, "hitch_max_deg": metrics.hitch_max_deg}
 
