@@ -160,3 +160,23 @@ def test_tyre_slip_experiment_runs_and_the_odometry_tolerates_slip():
     hitch_rmse, hitch_max = (float(value) for value in cells[4].split()[0:3:2])
     assert 1.5 < largest_slip < 3.0, row
     assert ate_percent < 2.0 and hitch_rmse < 0.5 and hitch_max < 1.5, row
+
+
+def test_evaluate_routes_script_writes_the_table(tmp_path):
+    """scripts/evaluate_routes.py on the CI route (bearings): simulated, run, evaluated, one table row
+    within the issue-7 limits; a second call reuses the dataset; an unknown route is a clear error."""
+    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
+    command = [sys.executable, str(ROOT / "scripts" / "evaluate_routes.py"), "--out", str(tmp_path), "--routes", "ci_short", "--no-images"]
+    run = subprocess.run(command, capture_output=True, text=True, env=env, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    table = (tmp_path / "routes.md").read_text().splitlines()
+    assert len(table) == 3 and table[2].startswith("| ci_short-bearings, bearings |")
+    ate_percent = float(table[2].split("(")[1].split()[0])
+    hitch_rmse, hitch_max = (float(value.strip().strip("°")) for value in table[2].split("|")[4].split(" / "))
+    assert ate_percent < 2.0 and hitch_rmse < 0.5 and hitch_max < 1.5, table[2]
+    assert (tmp_path / "runs" / "ci_short-bearings" / "metrics.json").is_file()
+    stamp = (tmp_path / "data" / "ci_short-bearings" / "frames.csv").stat().st_mtime_ns
+    again = subprocess.run(command, capture_output=True, text=True, env=env, timeout=300)
+    assert again.returncode == 0 and (tmp_path / "data" / "ci_short-bearings" / "frames.csv").stat().st_mtime_ns == stamp
+    unknown = subprocess.run(command[:-3] + ["--routes", "nowhere"], capture_output=True, text=True, env=env, timeout=300)
+    assert unknown.returncode == 2 and "no such route" in unknown.stderr
