@@ -36,7 +36,7 @@ from ampc_vo.errors import DatasetError
 from ampc_vo.frontend import FrontendResult, MultiCameraFrontend, match_stereo_image, observations_with_stereo
 from ampc_vo.observations import FrameObservations
 from ampc_vo.rig import Rig
-from ampc_vo.worker import stream_in_process
+from ampc_vo.worker import WorkerStartError, stream_in_process
 
 if TYPE_CHECKING:  # evaluation (evo, SciPy) is not imported by the frontend's worker process
     from ampc_vo.evaluation import GroundTruth
@@ -102,7 +102,24 @@ def _frontend_stream(make_steps: Callable[..., Iterator[FrameStep]], dataset: ob
         return make_steps(dataset, rig, config, *more)
     if dataclasses.is_dataclass(dataset) and getattr(dataset, "measurements", None) is not None:
         dataset = dataclasses.replace(dataset, measurements=None)
-    return stream_in_process(make_steps, (dataset, rig, dataclasses.replace(config, frontend_worker="none"), *more))
+    return _in_process_or_thread(make_steps, dataset, rig, config, more)
+
+
+def _in_process_or_thread(make_steps: Callable[..., Iterator[FrameStep]], dataset: object, rig: Rig, config: VoConfig,
+                          more: tuple) -> Iterator[FrameStep]:
+    """The frontend stream in a worker process; where none can be started (no ``/dev/shm`` in a
+    container, ...) in a worker thread, with a warning."""
+    stream = stream_in_process(make_steps, (dataset, rig, dataclasses.replace(config, frontend_worker="none"), *more))
+    try:
+        first = next(stream)
+    except WorkerStartError as error:
+        logger.warning("%s; the frontend runs in a thread instead (slower: frontend_worker thread)", error)
+        yield from make_steps(dataset, rig, dataclasses.replace(config, frontend_worker="thread"), *more)
+        return
+    except StopIteration:
+        return
+    yield first
+    yield from stream
 
 
 def image_steps(dataset: object, rig: Rig, config: VoConfig, frames: range,

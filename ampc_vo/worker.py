@@ -7,7 +7,8 @@ RANSAC, detection) runs on the other core, and only its small results (bearings,
 reports; the images when a recording needs them) cross over.
 
 :func:`stream_in_process` runs ``make_stream(*args)`` in a spawned process (fork is unsafe with
-OpenCV's thread pool) and yields its items in order through a bounded queue, so at most
+OpenCV's thread pool; :class:`WorkerStartError` on the first ``next`` when no process can be
+started there, e.g. without ``/dev/shm``) and yields its items in order through a bounded queue, so at most
 ``queue_size`` frames are produced ahead of the consumer. The worker's log records are handed to
 this process's loggers; an exception in the worker is raised here as the same exception (the
 worker's traceback is logged at DEBUG); a worker that dies without a word (killed, crashed) gives a
@@ -37,6 +38,10 @@ logger = logging.getLogger(__name__)
 
 _STEP, _LOG, _ERROR, _DONE = "step", "log", "error", "done"
 _POLL_S = 0.5  # how often the consumer checks that a silent worker is still alive
+
+
+class WorkerStartError(SourceError):
+    """The worker process could not be started (the caller may run the stream in this process)."""
 
 
 class _ConsumerGone(Exception):
@@ -112,12 +117,15 @@ def stream_in_process(make_stream: Callable[..., Iterator[Any]], args: tuple = (
     """
     if queue_size < 1:
         raise ValueError(f"queue_size must be >= 1, got {queue_size}")
-    context = multiprocessing.get_context("spawn")
-    channel = context.Queue(maxsize=queue_size)
-    process = context.Process(target=_worker_main, args=(channel, make_stream, args, logging.getLogger().getEffectiveLevel()),
-                              name=f"ampc-vo-{name}", daemon=True)
-    with _main_module_hidden():
-        process.start()
+    try:
+        context = multiprocessing.get_context("spawn")
+        channel = context.Queue(maxsize=queue_size)
+        process = context.Process(target=_worker_main, args=(channel, make_stream, args, logging.getLogger().getEffectiveLevel()),
+                                  name=f"ampc-vo-{name}", daemon=True)
+        with _main_module_hidden():
+            process.start()
+    except (OSError, ImportError, TypeError, pickle.PicklingError) as error:  # no semaphores (/dev/shm), no fork/exec, unpicklable args
+        raise WorkerStartError(f"the {name} process could not be started ({type(error).__name__}: {error})") from None
     try:
         while True:
             try:

@@ -209,3 +209,22 @@ def test_hitch_sigma_covers_the_error_without_being_vacuous(image_run):
     assert known.sum() >= 0.8 * len(hitch.sigmas)
     assert np.mean(error[known] <= 2.0 * hitch.sigmas[known]) >= 0.9
     assert np.degrees(np.median(hitch.sigmas[known])) < 0.5
+
+
+def test_without_worker_processes_the_frontend_runs_in_a_thread(rendered, monkeypatch, caplog):
+    """Where no process can be started (a container without /dev/shm: semaphores fail), the image
+    source says so and tracks in a thread: the same observations as inline."""
+    import ampc_vo.worker
+
+    class NoSemaphores:
+        def Queue(self, *args, **kwargs):
+            raise OSError(38, "Function not implemented")
+
+    monkeypatch.setattr(ampc_vo.worker.multiprocessing, "get_context", lambda method: NoSemaphores())
+    with caplog.at_level("WARNING"):
+        fallback = list(itertools.islice(open_sequence(rendered, VoConfig(frontend_worker="process")).steps(), 3))
+    assert "could not be started" in caplog.text and "runs in a thread" in caplog.text
+    inline = list(itertools.islice(open_sequence(rendered, VoConfig(frontend_worker="none")).steps(), 3))
+    for ours, theirs in zip(inline, fallback):
+        for name, camera in ours.observations.cameras.items():
+            np.testing.assert_array_equal(camera.bearings, theirs.observations.cameras[name].bearings)

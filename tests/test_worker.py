@@ -115,3 +115,16 @@ def test_a_worker_whose_consumer_is_killed_ends_by_itself(tmp_path):
     else:
         os.kill(worker_pid, signal.SIGKILL)
         pytest.fail("the worker went on after its consumer was killed")
+
+
+def test_a_worker_that_cannot_start_is_a_worker_start_error(monkeypatch):
+    import ampc_vo.worker
+    from ampc_vo.worker import WorkerStartError
+
+    class NoSemaphores:
+        def Queue(self, *args, **kwargs):
+            raise OSError(38, "Function not implemented")
+
+    monkeypatch.setattr(ampc_vo.worker.multiprocessing, "get_context", lambda method: NoSemaphores())
+    with pytest.raises(WorkerStartError, match="could not be started .*Function not implemented"):
+        next(stream_in_process(worker_support.count_up, (3,)))
