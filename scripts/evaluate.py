@@ -28,6 +28,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--title", default="", help="plot title")
     parser.add_argument("--no-plot", action="store_true", help="do not write evaluation.png")
     args = parser.parse_args(argv)
+    if args.seconds_per_frame is not None and not args.seconds_per_frame > 0:
+        parser.error(f"--seconds-per-frame must be > 0, got {args.seconds_per_frame}")
+    if not args.max_time_diff > 0:
+        parser.error(f"--max-time-diff must be > 0 (seconds), got {args.max_time_diff}")
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         truth = load_groundtruth(args.dataset)

@@ -103,6 +103,22 @@ def test_a_whole_camera_of_another_size_is_an_error_up_front(tiny_dataset):
         read_dataset(tiny_dataset, allow_missing_images=True)
 
 
+def test_twelve_bit_data_in_sixteen_bit_images_is_flagged(tiny_dataset, caplog):
+    """12-bit data in 16-bit PNGs reads as 8 bit with 16 grey levels: a warning names the file;
+    full-range 16-bit images (and 8-bit ones) pass silently."""
+    rng = np.random.default_rng(0)
+    path = tiny_dataset / "images" / "rear" / "000000.png"
+    cv2.imwrite(str(path), rng.integers(0, 4096, (480, 640)).astype(np.uint16))
+    with caplog.at_level("WARNING"):
+        read_dataset(tiny_dataset)
+    assert "rear/000000.png: 16-bit image whose values stay below 4096" in caplog.text
+    caplog.clear()
+    cv2.imwrite(str(path), rng.integers(0, 65536, (480, 640)).astype(np.uint16))
+    with caplog.at_level("WARNING"):
+        read_dataset(tiny_dataset)
+    assert "16-bit" not in caplog.text
+
+
 def test_non_increasing_timestamps(tiny_dataset):
     def swap(rows):
         rows[3][1], rows[4][1] = rows[4][1], rows[3][1]

@@ -178,3 +178,13 @@ def test_a_run_evaluated_against_another_dataset_is_flagged(tmp_path, caplog):
     with caplog.at_level("WARNING"):
         assert not check_run_dataset(out, tmp_path / "b")
     assert "was computed from" in caplog.text and str(tmp_path / "b") in caplog.text
+
+
+def test_evaluate_script_rejects_nonsense_options(tmp_path):
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "evaluate.py"
+    for option, value in (("--max-time-diff", "-1"), ("--seconds-per-frame", "0")):
+        run = subprocess.run([sys.executable, str(script), str(tmp_path), str(tmp_path), option, value], capture_output=True, text=True, timeout=120)
+        assert run.returncode == 2 and f"{option} must be > 0" in run.stderr

@@ -149,7 +149,19 @@ def _check_first_image_sizes(root: Path, rig: Rig, camera_names: tuple[str, ...]
             except DatasetError:
                 continue
             _check_size(root / relative, image, rig.camera(name))
+            _warn_if_low_bit_depth(root / relative)
             break
+
+
+def _warn_if_low_bit_depth(path: Path) -> None:
+    """A 16-bit image holding 8 to 12 bit data (machine-vision cameras) keeps only its top byte when
+    read as 8 bit: at most 16 grey levels, tracking degrades without an error. Say so once."""
+    import cv2
+
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is not None and raw.dtype == np.uint16 and 0 < int(raw.max()) < 4096:
+        LOGGER.warning("%s: 16-bit image whose values stay below 4096 (12-bit data?): read as 8 bit it keeps at most "
+                       "16 grey levels; store 8-bit images (value / 16 for 12-bit data)", path)
 
 
 def decode_image(path: Path) -> np.ndarray:
