@@ -66,9 +66,13 @@ class RansacConfig:
     # median parallax (pixels, divided by the focal length) below which a frame pair is a standstill;
     # null: the solvers' default (0.003 rad). Forward motion with mostly far points (KITTI) needs less
     standstill_parallax_px: float | None = None
+    # error of the Ackermann chord direction (curvature transitions, tyre slip; DESIGN 2): at small
+    # yaw changes the 2-point chord hinges on it; 0 trusts the model exactly
+    model_direction_sigma_deg: float = 0.05
 
     def validate(self, where: str) -> None:
         _positive(self.threshold_px, where + "threshold_px")
+        _at_least(self.model_direction_sigma_deg, 0.0, where + "model_direction_sigma_deg")
         if not 0.0 < self.confidence < 1.0:
             raise _error(where + "confidence", f"must be in (0, 1), got {self.confidence}")
         _at_least(self.max_iterations, 1, where + "max_iterations")

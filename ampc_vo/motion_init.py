@@ -85,6 +85,7 @@ def _solver_config(config: VoConfig, cameras: list[Camera]) -> SolverRansacConfi
         max_iterations=config.ransac.max_iterations,
         min_inliers=config.ransac.min_inliers,
         min_chord=config.keyframes.standstill_distance_m,
+        chord_direction_sigma=np.radians(config.ransac.model_direction_sigma_deg),
         seed=config.ransac.seed,
     )
 

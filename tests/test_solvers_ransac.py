@@ -175,3 +175,19 @@ def test_trailer_constraint_recovers_the_scale_in_straight_driving(rig: Rig) -> 
         assert joint.status is SolverStatus.OK
         chords.append(joint.chord)
     assert abs(np.median(chords) - 1.0) < 0.1
+
+
+def test_chord_direction_model_error_makes_near_straight_scale_unobservable(rig: Rig) -> None:
+    """``chord_direction_sigma`` (RansacConfig): at a 0.1 deg yaw change the 2-point chord hinges on
+    the chord direction, so a 0.1 deg model error (curvature transitions, slip) leaves it unobservable;
+    at 6 deg the same model error leaves the scale known and accurate."""
+    import dataclasses
+
+    rng = np.random.default_rng(40)
+    exact, modelled = RansacConfig(), dataclasses.replace(RansacConfig(), chord_direction_sigma=np.deg2rad(0.1))
+    near_straight = make_two_view_problem(rng, rig=rig, pixel_noise_px=0.1, yaw_change=np.deg2rad(0.1), chord=2.0)
+    assert estimate_tractor_motion(near_straight.groups("tractor"), near_straight.tractor_axle_x, exact).status is SolverStatus.OK
+    assert estimate_tractor_motion(near_straight.groups("tractor"), near_straight.tractor_axle_x, modelled).status is SolverStatus.SCALE_UNOBSERVABLE
+    turning = make_two_view_problem(rng, rig=rig, pixel_noise_px=0.1, yaw_change=np.deg2rad(6.0), chord=2.0)
+    estimate = estimate_tractor_motion(turning.groups("tractor"), turning.tractor_axle_x, modelled)
+    assert estimate.status is SolverStatus.OK and abs(estimate.chord - 2.0) < 0.05

@@ -25,7 +25,11 @@ class RansacConfig:
     ``standstill_parallax``: median angle between the two bearings of a correspondence below
     which nothing moved (a planar truck cannot rotate in place). ``min_camera_axle_offset``:
     cameras closer than this to the axle in x give no scale (DESIGN 2.1).
-    ``max_relative_chord_sigma``: above this relative standard deviation of the refined chord
+    ``chord_direction_sigma``: error of the Ackermann model's chord direction (DESIGN 2: about
+    kappa' L^2 / 12 in curvature transitions, more with tyre slip), added to the refined chord's
+    sigma as ``chord^2 sigma / (|yaw change| p_x)`` (p_x: the largest camera offset from the axle):
+    at small yaw changes the scale hinges on that direction. ``max_relative_chord_sigma``: above
+    this relative standard deviation of the refined chord
     (or a chord beyond ``max_chord``, where a flat cost lets the refinement wander), the scale is
     reported unobservable. ``max_hitch_angle``: admissible |theta|, |theta'|. ``prior_gate``:
     hitch hypotheses farther than this from the prior hitch angle are dropped when any hypothesis
@@ -55,6 +59,7 @@ class RansacConfig:
     standstill_parallax: float = 0.003
     min_camera_axle_offset: float = 0.05
     max_relative_chord_sigma: float = 0.3
+    chord_direction_sigma: float = 0.0   # rad: model error of the chord direction (changing curvature, slip)
     max_hitch_angle: float = 0.5 * np.pi
     prior_gate: float = np.deg2rad(15.0)
     refine: bool = True

@@ -133,6 +133,9 @@ def estimate_tractor_motion(
     refined = _local_optimization(groups, pool, axle_x, config)
     cost, refined_yaw, refined_chord, covariance, rms, refined_inliers, start = refined[0]
     chord_sigma = float(np.sqrt(covariance[1, 1])) if np.isfinite(covariance[1, 1]) else float("inf")
+    if config.chord_direction_sigma > 0.0:  # the model's share (RansacConfig): dominant at small yaw changes
+        lever = float(np.max(np.abs(centers[scale_capable, 0] - axle_x)))
+        chord_sigma = float(np.hypot(chord_sigma, refined_chord**2 * config.chord_direction_sigma / max(abs(refined_yaw) * lever, 1e-12)))
     if not _scale_is_known(refined, chord_sigma, config):
         return _scale_unobservable(groups, pool[0], axle_x, config, chord_prior, drawn, chord_sigma)
     count = int(np.sum(refined_inliers))
