@@ -134,32 +134,31 @@ class Dataset:
 
 
 def _check_size(path: Path, image: np.ndarray, camera) -> None:
-    if image.shape != (camera.height, camera.width):
+    if image.shape[:2] != (camera.height, camera.width):
         raise DatasetError(f"{path}: image is {image.shape[1]}x{image.shape[0]} but rig.yaml says camera {camera.name!r} is {camera.width}x{camera.height}")
 
 
-def _check_first_image_sizes(root: Path, rig: Rig, camera_names: tuple[str, ...], image_paths: np.ndarray) -> None:
-    """The first readable image of each camera must have the rig's size: a whole camera of the
-    wrong size (another rig.yaml, resized images) is an error up front, not a warning at every frame.
-    Missing or corrupt images are left to the run (it skips them)."""
+def _check_first_images(root: Path, rig: Rig, camera_names: tuple[str, ...], image_paths: np.ndarray) -> None:
+    """The first readable image of each camera (decoded once, as stored) must have the rig's size:
+    a whole camera of the wrong size (another rig.yaml, resized images) is an error up front, not a
+    warning at every frame; a low bit depth is a warning (:func:`_warn_if_low_bit_depth`). Missing
+    or corrupt images are left to the run (it skips them)."""
+    import cv2
+
     for column, name in enumerate(camera_names):
         for relative in image_paths[:, column]:
-            try:
-                image = decode_image(root / relative)
-            except DatasetError:
+            stored = cv2.imread(str(root / relative), cv2.IMREAD_UNCHANGED)
+            if stored is None or stored.size == 0:
                 continue
-            _check_size(root / relative, image, rig.camera(name))
-            _warn_if_low_bit_depth(root / relative)
+            _check_size(root / relative, stored, rig.camera(name))
+            _warn_if_low_bit_depth(root / relative, stored)
             break
 
 
-def _warn_if_low_bit_depth(path: Path) -> None:
+def _warn_if_low_bit_depth(path: Path, stored: np.ndarray) -> None:
     """A 16-bit image holding 8 to 12 bit data (machine-vision cameras) keeps only its top byte when
     read as 8 bit: at most 16 grey levels, tracking degrades without an error. Say so once."""
-    import cv2
-
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is not None and raw.dtype == np.uint16 and 0 < int(raw.max()) < 4096:
+    if stored.dtype == np.uint16 and 0 < int(stored.max()) < 4096:
         LOGGER.warning("%s: 16-bit image whose values stay below 4096 (12-bit data?): read as 8 bit it keeps at most "
                        "16 grey levels; store 8-bit images (value / 16 for 12-bit data)", path)
 
@@ -314,7 +313,7 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
                 for name, path in zip(camera_names, row):
                     _check_size(root / path, decode_image(root / path), rig.camera(name))
         else:
-            _check_first_image_sizes(root, rig, camera_names, image_paths)
+            _check_first_images(root, rig, camera_names, image_paths)
     groundtruth_path = root / GROUNDTRUTH_FILE
     groundtruth = _read_groundtruth(groundtruth_path, timestamps) if groundtruth_path.is_file() else None
     measurements = None
