@@ -16,7 +16,107 @@ from typing import Any
 import yaml
 
 from ampc_vo.errors import ConfigError
-from ampc_vo.frontend import StereoConfig, TrackerConfig
+
+# ---------------------------------------------------------------------- frontend settings
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Settings of one camera's tracker (pixels unless marked otherwise)."""
+
+    max_features: int = 300          # target number of tracked features per camera
+    grid_rows: int = 6               # replenishment grid
+    grid_cols: int = 8
+    replenish_ratio: float = 0.85    # detect new corners when fewer than this share of max_features remain
+    max_per_cell_factor: float = 2.0 # a cell keeps at most this times its share of tracks (oldest first)
+    quality_level: float = 0.001     # GFTT quality relative to the best corner of the searched region
+    min_distance_px: float = 12.0    # GFTT minimum distance, also the exclusion radius around tracks
+    block_size: int = 3              # GFTT block size (at the detection scale)
+    detect_downscale: int = 2        # detect corners on an image downscaled by 1 (full size), 2 or 4 (faster)
+    lk_window: int = 15              # LK window side (15: same accuracy as 21 on rendered images, 25 % faster)
+    lk_levels: int = 4               # pyramid levels above the base image (4: side cameras move 40-120 px per frame at
+                                     # 8 m/s, 10 Hz; 3 levels lose most of them; KLT survival 77% -> 89% on the demo
+                                     # route, scripts/measure_klt_survival.py; OpenCV caps it where a level gets
+                                     # smaller than the window: 4 is the deepest for 640x480 with a 15 px window)
+    fb_levels: int = 1               # pyramid levels of the backward pass (it starts at the answer)
+    lk_iterations: int = 20
+    lk_epsilon: float = 0.03
+    fb_threshold_px: float = 1.0     # forward-backward error above which a track is dropped
+    border_px: float = 4.0           # tracks closer than this to the image border are dropped
+    ransac_threshold_px: float = 1.5 # outlier threshold (converted to radians with the focal length)
+    ransac_iterations: int = 32      # essential-matrix hypotheses per frame (8-point samples)
+    min_tracks_for_ransac: int = 16  # below this, no outlier rejection
+    jump_fraction: float = 0.25      # re-initialise when fewer than this share of tracks survive ...
+    jump_min_tracks: int = 30        # ... and at least this many tracks were there to begin with
+    min_contrast: float = 2.0        # image standard deviation (grey levels) below which a frame is blank
+    seed: int = 0                    # RANSAC sampling seed
+
+    def __post_init__(self) -> None:
+        positive = ("max_features", "grid_rows", "grid_cols", "lk_window", "ransac_iterations", "block_size")
+        for name in positive:
+            if int(getattr(self, name)) <= 0:
+                raise ConfigError(f"frontend: {name} must be positive, got {getattr(self, name)!r}")
+        if self.lk_levels < 0 or self.fb_levels < 0:
+            raise ConfigError(f"frontend: lk_levels and fb_levels must be >= 0, got {self.lk_levels}, {self.fb_levels}")
+        if self.detect_downscale not in (1, 2, 4):
+            raise ConfigError(f"frontend: detect_downscale must be 1, 2 or 4, got {self.detect_downscale}")
+        if self.lk_window % 2 == 0:
+            raise ConfigError(f"frontend: lk_window must be odd, got {self.lk_window}")
+        if not 0.0 < self.quality_level < 1.0:
+            raise ConfigError(f"frontend: quality_level must be in (0, 1), got {self.quality_level}")
+        if self.fb_threshold_px <= 0.0 or self.ransac_threshold_px <= 0.0 or self.min_distance_px <= 0.0:
+            raise ConfigError("frontend: fb_threshold_px, ransac_threshold_px and min_distance_px must be positive")
+
+
+
+@dataclass(frozen=True)
+class StereoConfig:
+    """Settings of :func:`match_stereo` (KLT from the first to the second camera of a pair)."""
+
+    lk_window: int = 21
+    lk_levels: int = 4
+    fb_levels: int = 1                   # backward pass starts at the original pixel: shallow pyramid
+    lk_iterations: int = 30
+    lk_epsilon: float = 0.01
+    fb_threshold_px: float = 1.0
+    border_px: float = 0.0               # matches closer than this to the second image's border are dropped
+    epipolar_threshold_px: float = 0.7   # Sampson GEC error of the known pair, pixels (rectified: row error / sqrt 2)
+    min_depth_m: float = 1.0             # points closer than this (or behind) are rejected
+    max_depth_m: float = 200.0
+
+
+
+
+def _config_from_dict(kind: type, raw: dict[str, Any] | None, source: str) -> Any:
+    """A frozen config dataclass from a YAML mapping; unknown keys and bad values raise ConfigError."""
+    if raw is None:
+        return kind()
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{source}: expected a mapping of {kind.__name__} settings, got {type(raw).__name__}")
+    fields = {item.name: item for item in dataclasses.fields(kind)}
+    unknown = sorted(set(raw) - set(fields))
+    if unknown:
+        raise ConfigError(f"{source}: unknown setting(s) {unknown}; known: {sorted(fields)}")
+    values = {}
+    for name, value in raw.items():
+        cast = int if isinstance(getattr(kind(), name), int) else float
+        try:
+            values[name] = cast(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{source}: {name}: expected a number, got {value!r}") from None
+    try:
+        return kind(**values)
+    except ConfigError as error:
+        raise ConfigError(f"{source}: {error}") from None
+
+
+def tracker_config_from_dict(raw: dict[str, Any] | None, source: str = "frontend") -> "TrackerConfig":
+    """:class:`TrackerConfig` from a config mapping (e.g. the ``frontend`` section of a VO config)."""
+    return _config_from_dict(TrackerConfig, raw, source)
+
+
+def stereo_config_from_dict(raw: dict[str, Any] | None, source: str = "stereo") -> "StereoConfig":
+    """:class:`StereoConfig` from a config mapping."""
+    return _config_from_dict(StereoConfig, raw, source)
+
 
 MODES = ("full", "tractor_only", "no_trailer_constraint", "separate")
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
@@ -24,7 +124,7 @@ PUBLISH_POLICIES = ("latest", "lagged")
 # where the frames' observations come from (issue 7): images through the frontend when the dataset
 # has them, else the simulator's bearing measurements (``auto``); or forced
 SOURCES = ("auto", "images", "bearings")
-# where an image source produces the next frame while the backend works (ampc_vo.sources)
+# where an image source produces the next frame while the backend works (ampc_vo.frontend.sources)
 FRONTEND_WORKERS = ("process", "thread", "none")
 
 
@@ -133,7 +233,7 @@ class ScaleConfig:
     (``null`` disables it) and the optional wheel-speed factor (off by default).
 
     ``ground_plane``: measure the tractor axle chord from road points seen by the tractor cameras
-    and their known height above the road (``ampc_vo.ground_scale``; needs the cameras' pitch
+    and their known height above the road (``ampc_vo.scale.ground``; needs the cameras' pitch
     relative to the road calibrated in the rig); ``ground_z_m``: z of the road surface in the body
     frame (body origin at the hitch; the simulator's road is at the origin's height, 0;
     a real truck: minus the hitch height); ``ground_height_sigma_m``: uncertainty of
@@ -156,7 +256,7 @@ class ScaleConfig:
     cross_camera_gate_px: float = 10.0
     # chord of the tractor axle from points triangulated by two cameras of the tractor in the same
     # frame (equal landmark_ids; KITTI's stereo pair): initial chord and a robust chord factor
-    # (ampc_vo.stereo_scale); points up to stereo_max_depth_m are used
+    # (ampc_vo.scale.stereo); points up to stereo_max_depth_m are used
     stereo_chord: bool = False
     stereo_max_depth_m: float = 40.0
     bootstrap_pairs: int = 3

@@ -167,3 +167,26 @@ def check_bearings(bearings: ArrayF, name: str = "bearings", count: int | None =
     if np.any(norms < 1e-9):
         raise BearingError(f"{name} contains zero-length vectors")
     return array / norms[:, None]
+
+
+def triangulate_midpoint(bearings_first: np.ndarray, bearings_second: np.ndarray, T_first_second: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Midpoint triangulation of rays (vectorised); returns ``(points (N, 3) in the first camera
+    frame, depths along the first rays (N,))``. Parallel rays get depth ``inf``."""
+    rotation, baseline = T_first_second[:3, :3], T_first_second[:3, 3]
+    d1 = bearings_first
+    d2 = bearings_second @ rotation.T
+    # minimise |s d1 - (baseline + u d2)|: normal equations of the 2x2 system
+    a = np.einsum("na,na->n", d1, d1)
+    b = np.einsum("na,na->n", d1, d2)
+    c = np.einsum("na,na->n", d2, d2)
+    e = d1 @ baseline
+    f = d2 @ baseline
+    det = a * c - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(np.abs(det) > 1e-12, (e * c - b * f) / det, np.inf)
+        u = np.where(np.abs(det) > 1e-12, (b * e - a * f) / det, np.inf)
+        points = 0.5 * (s[:, None] * d1 + baseline + u[:, None] * d2)
+    depth = np.where(u > 0, s, -np.abs(s))  # both rays must point at the point
+    return points, depth
+
+

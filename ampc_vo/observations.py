@@ -1,7 +1,7 @@
 """Per-frame feature observations: the one currency between measurement sources and the backend.
 
 Two sources produce the same type (DESIGN section 4): the image frontend (``frontend``) tracks
-features in images, and the simulator's bearing measurements (``simulation``) replay
+features in images, and the simulator's bearing measurements (``ampc_vo.sim``) replay
 ``measurements.npz``. The backend consumes :class:`FrameObservations` and does not know which.
 """
 from __future__ import annotations
@@ -53,3 +53,22 @@ def match_tracks(first: CameraObservations, second: CameraObservations) -> tuple
     """Indices ``(index_first, index_second)`` of the track ids both observations share."""
     _, index_first, index_second = np.intersect1d(first.track_ids, second.track_ids, assume_unique=True, return_indices=True)
     return index_first, index_second
+
+
+def match_landmarks(first: CameraObservations, second: CameraObservations) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``(index_first, index_second)`` of the observations of two *different* cameras that
+    see the same landmark (equal ``landmark_ids`` >= 0; ids seen twice in one camera are ambiguous
+    and dropped). Empty when either camera has no landmark ids."""
+    empty = np.zeros(0, dtype=np.int64)
+    if first.landmark_ids is None or second.landmark_ids is None:
+        return empty, empty
+    usable_first, usable_second = usable_landmarks(first.landmark_ids), usable_landmarks(second.landmark_ids)
+    _, index_first, index_second = np.intersect1d(first.landmark_ids[usable_first], second.landmark_ids[usable_second], assume_unique=True, return_indices=True)
+    return usable_first[index_first], usable_second[index_second]
+
+
+def usable_landmarks(landmark_ids: np.ndarray) -> np.ndarray:
+    """Indices of the known (>= 0) landmark ids that occur once."""
+    ids = np.asarray(landmark_ids, dtype=np.int64)
+    values, counts = np.unique(ids, return_counts=True)
+    return np.flatnonzero((ids >= 0) & ~np.isin(ids, values[counts > 1]))

@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from ampc_vo.config import load_config
-from ampc_vo.pipeline import OdometryPipeline
-from ampc_vo.sim_config import load_sim_config
-from ampc_vo.simulation import simulate
+from ampc_vo.backend.pipeline import OdometryPipeline
+from ampc_vo.sim.config import load_sim_config
+from ampc_vo.sim.simulation import simulate
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -25,7 +25,7 @@ from typing import Callable
 import gtsam
 import numpy as np
 
-from ampc_vo.two_view import make_two_view_problem, reference_rig
+from ampc_vo.sim.two_view import make_two_view_problem, reference_rig
 from factors import GeneralizedEpipolarFactor, robust_noise
 
 FOCAL_PX = 700.0

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from ampc_vo.errors import AmpcError
-from ampc_vo.frontend import MultiCameraFrontend, TrackerConfig
+from ampc_vo.frontend.multi_camera import MultiCameraFrontend
+from ampc_vo.config import TrackerConfig
 from ampc_vo.rig import Body, Camera, Rig
 
 STAGES = ("detect", "track", "reject", "unproject")
@@ -62,12 +63,12 @@ def reference_gftt_ms(repeats: int = 10) -> float:
 
 
 def dataset_frames(path: Path, count: int) -> tuple[Rig, list[dict[str, np.ndarray | None]], tuple[tuple[str, str], ...]]:
-    from ampc_vo.datasets.kitti import is_kitti_folder, load_kitti
+    from ampc_vo.io.kitti import is_kitti_folder, load_kitti
 
     if is_kitti_folder(path):
         dataset = load_kitti(path)
         return dataset.rig, [dataset.images(k) for k in range(min(count, len(dataset)))], (("left", "right"),)
-    from ampc_vo.datasets.folder import read_dataset
+    from ampc_vo.io.folder import read_dataset
 
     dataset = read_dataset(path, load_measurements_file=False)
     if not dataset.has_images:

@@ -38,9 +38,9 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"frontend workers to time, in turn (default: process, and {REFERENCE_WORKER} as the reference)")
     args = parser.parse_args(argv)
     try:
-        from ampc_vo.demo import demo_dataset
-        from ampc_vo.runner import run_sequence
-        from ampc_vo.sources import open_sequence
+        from ampc_vo.tools.demo import demo_dataset
+        from ampc_vo.tools.runner import run_sequence
+        from ampc_vo.frontend.sources import open_sequence
 
         base = load_config(args.config)
         dataset = args.dataset or demo_dataset()

@@ -21,11 +21,12 @@ import numpy as np  # noqa: E402
 REPOSITORY_ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPOSITORY_ROOT))
 
-from ampc_vo.kinematics import Trajectory, simulate_kinematics  # noqa: E402
-from ampc_vo.render import Renderer, RenderOptions, render_sequence  # noqa: E402
+from ampc_vo.io.groundtruth import Trajectory  # noqa: E402
+from ampc_vo.sim.kinematics import simulate_kinematics
+from ampc_vo.sim.render import Renderer, RenderOptions, render_sequence  # noqa: E402
 from ampc_vo.rig import load_rig  # noqa: E402
-from ampc_vo.scene import build_scene  # noqa: E402
-from ampc_vo.sim_config import load_sim_config  # noqa: E402
+from ampc_vo.sim.scene import build_scene  # noqa: E402
+from ampc_vo.sim.config import load_sim_config  # noqa: E402
 
 
 def main() -> None:

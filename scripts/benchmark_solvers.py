@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Benchmark: our tractor RANSAC (2-point Ackermann) vs poselib's generalized relative pose.
 
-Both estimators get the same simulated correspondences (ampc_vo.two_view): Ackermann motion of a
+Both estimators get the same simulated correspondences (ampc_vo.sim.two_view): Ackermann motion of a
 tractor with a front and a side camera (non-overlapping, intra-camera matches), 1 px noise, 700 px
 focal, 10% outliers. Prints time per call, rotation error, translation-direction error and scale
 error for both, the time ratio, and the per-solver microseconds of the minimal solvers.
@@ -30,7 +30,7 @@ from ampc_vo.solvers import (
     tractor_motion_2pt,
     tractor_motion_2pt_batch,
 )
-from ampc_vo.two_view import TwoViewProblem, make_two_view_problem, random_rig, reference_rig
+from ampc_vo.sim.two_view import TwoViewProblem, make_two_view_problem, random_rig, reference_rig
 
 try:
     import poselib

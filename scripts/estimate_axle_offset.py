@@ -3,7 +3,7 @@
 
     python scripts/estimate_axle_offset.py DATASET [--step N] [--min-yaw-deg D]
 
-DATASET is a KITTI odometry folder (poses.txt; the body frame of ampc_vo.datasets.kitti, origin on
+DATASET is a KITTI odometry folder (poses.txt; the body frame of ampc_vo.io.kitti, origin on
 the ground below the left camera) or one of our dataset folders (groundtruth.csv; origin at the
 hitch). Uses the turning pose pairs only: on straight driving axle_x is unobservable.
 """
@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ampc_vo.axle_offset import estimate_axle_x
-from ampc_vo.datasets.kitti import is_kitti_folder, load_kitti
+from ampc_vo.tools.axle_offset import estimate_axle_x
+from ampc_vo.io.kitti import is_kitti_folder, load_kitti
 from ampc_vo.errors import AmpcError
 
 
@@ -33,7 +33,7 @@ def main() -> int:
                 raise AmpcError(f"{args.dataset}: no poses.txt")
             poses, configured = dataset.T_world_tractor, dataset.rig.axle_x("tractor")
         else:
-            from ampc_vo.datasets.folder import read_dataset
+            from ampc_vo.io.folder import read_dataset
 
             dataset = read_dataset(args.dataset, load_measurements_file=False)
             if dataset.groundtruth is None:

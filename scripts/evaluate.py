@@ -16,7 +16,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
 from ampc_vo.errors import AmpcError  # noqa: E402
-from ampc_vo.evaluation import METRICS_FILE, PLOT_FILE, check_run_dataset, evaluate_output, load_groundtruth, plot_evaluation, write_metrics  # noqa: E402
+from ampc_vo.tools.evaluation import METRICS_FILE, PLOT_FILE, check_run_dataset, evaluate_output, plot_evaluation, write_metrics  # noqa: E402
+from ampc_vo.io.datasets import load_groundtruth
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -30,12 +30,12 @@ def evaluate_route(route: str, out: Path, rig: Path | None, images: bool, config
     """Simulate (unless already there), run and evaluate one route; its Markdown row."""
     import dataclasses
 
-    from ampc_vo.datasets.folder import FRAMES_FILE
-    from ampc_vo.evaluation import METRICS_FILE, PLOT_FILE, evaluate_output, plot_evaluation, write_metrics
-    from ampc_vo.runner import run_sequence
-    from ampc_vo.sim_config import load_sim_config
-    from ampc_vo.simulation import simulate_dataset
-    from ampc_vo.sources import open_sequence
+    from ampc_vo.io.folder import FRAMES_FILE
+    from ampc_vo.tools.evaluation import METRICS_FILE, PLOT_FILE, evaluate_output, plot_evaluation, write_metrics
+    from ampc_vo.tools.runner import run_sequence
+    from ampc_vo.sim.config import load_sim_config
+    from ampc_vo.sim.simulation import simulate_dataset
+    from ampc_vo.frontend.sources import open_sequence
 
     route_file = ROUTES / f"{route}.yaml"
     if not route_file.is_file():

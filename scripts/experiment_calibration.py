@@ -21,8 +21,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ampc_vo.config import load_config  # noqa: E402
 from ampc_vo.errors import AmpcError  # noqa: E402
-from ampc_vo.experiments import CAMERA_AXES, miscalibrated_rig, score_on_simulation  # noqa: E402
-from ampc_vo.simulation import simulate  # noqa: E402
+from ampc_vo.tools.experiments import CAMERA_AXES, miscalibrated_rig, score_on_simulation  # noqa: E402
+from ampc_vo.sim.simulation import simulate  # noqa: E402
 
 ROUTES = Path(__file__).resolve().parents[1] / "configs" / "sim"
 

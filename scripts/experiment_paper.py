@@ -23,11 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from ampc_vo.config import MODES, load_config
-from ampc_vo.evaluation import GroundTruth, evaluate
-from ampc_vo.outputs import HitchSeries, Trajectory
-from ampc_vo.pipeline import run_on_frames
-from ampc_vo.sim_config import load_sim_config
-from ampc_vo.simulation import simulate
+from ampc_vo.io.groundtruth import GroundTruth
+from ampc_vo.tools.evaluation import evaluate
+from ampc_vo.io.outputs import HitchSeries, Trajectory
+from ampc_vo.backend.pipeline import run_on_frames
+from ampc_vo.sim.config import load_sim_config
+from ampc_vo.sim.simulation import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 

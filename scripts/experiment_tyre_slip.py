@@ -4,7 +4,7 @@
     python scripts/experiment_tyre_slip.py [--routes city_block suburb] [--slips 0 0.5 1.0] [--config CONFIG]
 
 For each route file and slip setting (``tyre_slip_deg_per_mps2``: each axle's velocity turned
-outward of its heading by that many degrees per m/s^2 of lateral acceleration; ``ampc_vo.kinematics``)
+outward of its heading by that many degrees per m/s^2 of lateral acceleration; ``ampc_vo.sim.kinematics``)
 the route is simulated (bearings, the route file's noise and outliers), the odometry runs in full
 mode and is evaluated against the truth. Prints a Markdown table: the largest slip angle of the
 tractor axle along the route, tractor ATE (SE(3)), hitch RMSE and maximum.
@@ -23,11 +23,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ampc_vo.config import load_config  # noqa: E402
 from ampc_vo.errors import AmpcError  # noqa: E402
-from ampc_vo.experiments import score_on_simulation  # noqa: E402
+from ampc_vo.tools.experiments import score_on_simulation  # noqa: E402
 from ampc_vo.geometry import wrap_angle, yaw_of  # noqa: E402
-from ampc_vo.kinematics import Trajectory, axle_positions  # noqa: E402
-from ampc_vo.sim_config import load_sim_config  # noqa: E402
-from ampc_vo.simulation import simulate  # noqa: E402
+from ampc_vo.io.groundtruth import Trajectory  # noqa: E402
+from ampc_vo.sim.kinematics import axle_positions
+from ampc_vo.sim.config import load_sim_config  # noqa: E402
+from ampc_vo.sim.simulation import simulate  # noqa: E402
 
 ROUTES = Path(__file__).resolve().parents[1] / "configs" / "sim"
 

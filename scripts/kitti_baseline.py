@@ -21,11 +21,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 import numpy as np  # noqa: E402
 from evo.core import metrics  # noqa: E402
 
-from ampc_vo.baseline import StereoPnpConfig, stereo_pnp_odometry  # noqa: E402
-from ampc_vo.datasets.kitti import load_kitti  # noqa: E402
+from ampc_vo.tools.baseline import StereoPnpConfig, stereo_pnp_odometry  # noqa: E402
+from ampc_vo.io.kitti import load_kitti  # noqa: E402
 from ampc_vo.errors import AmpcError  # noqa: E402
-from ampc_vo.evaluation import GroundTruth, _evo_trajectory, evaluate  # noqa: E402
-from ampc_vo.outputs import Trajectory, write_tum  # noqa: E402
+from ampc_vo.io.groundtruth import GroundTruth  # noqa: E402
+from ampc_vo.tools.evaluation import _evo_trajectory, evaluate
+from ampc_vo.io.outputs import Trajectory, write_tum  # noqa: E402
 
 DEFAULT_CLIP = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-clip"
 

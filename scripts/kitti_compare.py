@@ -4,9 +4,9 @@
     python scripts/kitti_compare.py [KITTI_FOLDER] [--out OUT] [--config CONFIG]
 
 Runs ``ampc_vo`` (the pipeline of ``scripts/run_odometry.py``, config ``configs/vo/kitti.yaml``
-unless ``--config``) and the stereo PnP baseline (``ampc_vo.baseline`` with its default settings,
+unless ``--config``) and the stereo PnP baseline (``ampc_vo.tools.baseline`` with its default settings,
 which suit it better than ours: ATE 0.124 m against 0.149 m with our frontend settings) on
-the same folder, evaluates both with evo in KITTI's left-camera frame (``ampc_vo.evaluation``:
+the same folder, evaluates both with evo in KITTI's left-camera frame (``ampc_vo.tools.evaluation``:
 ATE after an SE(3) alignment -- metric, no scale correction --, ATE after a Sim(3) alignment, RPE
 over 10 m segments in percent) and prints a table with the ratio ours / baseline. Timings are
 measured in the same run (the machine may be shared: compare the ratio). With ``--out`` the
@@ -27,13 +27,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 
 import numpy as np  # noqa: E402
 
-from ampc_vo.baseline import StereoPnpConfig, stereo_pnp_odometry  # noqa: E402
+from ampc_vo.tools.baseline import StereoPnpConfig, stereo_pnp_odometry  # noqa: E402
 from ampc_vo.config import load_config  # noqa: E402
 from ampc_vo.errors import AmpcError  # noqa: E402
-from ampc_vo.evaluation import METRICS_FILE, PLOT_FILE, evaluate, evaluate_output, plot_evaluation, write_metrics  # noqa: E402
-from ampc_vo.outputs import Trajectory, write_tum  # noqa: E402
-from ampc_vo.runner import run_sequence  # noqa: E402
-from ampc_vo.sources import default_config_path, open_sequence  # noqa: E402
+from ampc_vo.tools.evaluation import METRICS_FILE, PLOT_FILE, evaluate, evaluate_output, plot_evaluation, write_metrics  # noqa: E402
+from ampc_vo.io.outputs import Trajectory, write_tum  # noqa: E402
+from ampc_vo.tools.runner import run_sequence  # noqa: E402
+from ampc_vo.frontend.sources import default_config_path, open_sequence  # noqa: E402
 
 DEFAULT_CLIP = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-clip"
 ROWS = (
@@ -60,7 +60,7 @@ def compare(dataset: Path, out: Path, config_path: Path | None) -> dict:
     write_metrics(ours.metrics, ours_dir / METRICS_FILE)
     plot_evaluation(ours, ours_dir / PLOT_FILE, title=f"ampc-vo on {dataset.name}")
 
-    from ampc_vo.datasets.kitti import load_kitti
+    from ampc_vo.io.kitti import load_kitti
 
     kitti = load_kitti(dataset)
     started = time.perf_counter()

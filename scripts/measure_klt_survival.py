@@ -5,7 +5,7 @@ For every ``--step``-th pair of consecutive frames and every camera: GFTT featur
 OpenCV pyramidal LK forward and backward with the frontend's ``TrackerConfig`` LK settings (window,
 pyramid levels, criteria; override with ``--lk-window`` / ``--lk-levels``), survival = forward-backward
 error <= 0.5 px. Only features whose true next position (depth buffer + ground-truth poses) stays inside
-the image and unoccluded are counted (``ampc_vo.klt_survival``). Prints survival per camera and per
+the image and unoccluded are counted (``ampc_vo.tools.klt_survival``). Prints survival per camera and per
 segment (straight / turn, by the yaw change of the camera's body), pooled.
 
     PYTHONPATH=. python scripts/measure_klt_survival.py --config configs/sim/demo.yaml [--step 5]
@@ -27,12 +27,12 @@ import numpy as np  # noqa: E402
 REPOSITORY_ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPOSITORY_ROOT))
 
-from ampc_vo.frontend import TrackerConfig  # noqa: E402
-from ampc_vo.kinematics import simulate_kinematics  # noqa: E402
-from ampc_vo.klt_survival import SEGMENTS, SurvivalSettings, measure_route, summarise  # noqa: E402
-from ampc_vo.render import Renderer, render_options_from_dict  # noqa: E402
-from ampc_vo.scene import build_scene  # noqa: E402
-from ampc_vo.sim_config import load_sim_config  # noqa: E402
+from ampc_vo.config import TrackerConfig  # noqa: E402
+from ampc_vo.sim.kinematics import simulate_kinematics  # noqa: E402
+from ampc_vo.tools.klt_survival import SEGMENTS, SurvivalSettings, measure_route, summarise  # noqa: E402
+from ampc_vo.sim.render import Renderer, render_options_from_dict  # noqa: E402
+from ampc_vo.sim.scene import build_scene  # noqa: E402
+from ampc_vo.sim.config import load_sim_config  # noqa: E402
 
 
 def _cell(counts: tuple[int, int] | None) -> str:

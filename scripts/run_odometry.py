@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="simulate wheel odometry from the ground truth with this noise (m) and enable the wheel-speed factor")
     args = parser.parse_args(argv)
     try:
-        from ampc_vo.sources import default_config_path
+        from ampc_vo.frontend.sources import default_config_path
 
         config = load_config(args.config if args.config is not None else default_config_path(args.dataset))
         if args.mode:
@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         logging.basicConfig(level=config.output.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
         demo = args.dataset is None
         if demo:
-            from ampc_vo.demo import demo_dataset
+            from ampc_vo.tools.demo import demo_dataset
 
             dataset_path = demo_dataset(progress=not args.no_progress)
             out = args.out or Path("out/demo")
@@ -61,15 +61,15 @@ def main(argv: list[str] | None = None) -> int:
             if args.out is None:
                 parser.error("--out is required with a DATASET")
             dataset_path, out = args.dataset, args.out
-        from ampc_vo.runner import run_sequence
-        from ampc_vo.sources import open_sequence
+        from ampc_vo.tools.runner import run_sequence
+        from ampc_vo.frontend.sources import open_sequence
 
         sequence = open_sequence(dataset_path, config, args.start, args.stop)
         wheel = None
         if args.wheel_speed_from_groundtruth is not None:
             if sequence.truth is None:
                 raise AmpcError(f"{dataset_path}: --wheel-speed-from-groundtruth needs ground truth")
-            from ampc_vo.pipeline import wheel_odometry_from_poses
+            from ampc_vo.scale.wheel import wheel_odometry_from_poses
 
             config = dataclasses.replace(config, scale=dataclasses.replace(config.scale, wheel_speed=True))
             wheel = wheel_odometry_from_poses(sequence.truth.timestamps, sequence.truth.T_world_tractor, sequence.rig.axle_x("tractor"), args.wheel_speed_from_groundtruth)
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.rerun is not None:
         print(f"Rerun recording: {args.rerun}  (view: rerun {args.rerun})")
     if demo and sequence.truth is not None:
-        from ampc_vo.evaluation import METRICS_FILE, PLOT_FILE, evaluate_output, plot_evaluation, write_metrics
+        from ampc_vo.tools.evaluation import METRICS_FILE, PLOT_FILE, evaluate_output, plot_evaluation, write_metrics
 
         evaluation = evaluate_output(out, sequence.truth)
         write_metrics(evaluation.metrics, out / METRICS_FILE)

@@ -20,8 +20,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
 from ampc_vo.errors import AmpcError, ConfigError  # noqa: E402
-from ampc_vo.sim_config import load_sim_config  # noqa: E402
-from ampc_vo.simulation import simulate_dataset  # noqa: E402
+from ampc_vo.sim.config import load_sim_config  # noqa: E402
+from ampc_vo.sim.simulation import simulate_dataset  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

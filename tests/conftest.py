@@ -7,11 +7,11 @@ import cv2
 import numpy as np
 import pytest
 
-from ampc_vo.datasets import write_dataset
-from ampc_vo.datasets.folder import image_relative_path
-from ampc_vo.kinematics import simulate_kinematics
+from ampc_vo.io.folder import write_dataset
+from ampc_vo.io.folder import image_relative_path
+from ampc_vo.sim.kinematics import simulate_kinematics
 from ampc_vo.rig import load_rig
-from ampc_vo.routes import route_from_list
+from ampc_vo.sim.routes import route_from_list
 
 REPOSITORY_ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = REPOSITORY_ROOT / "configs"
@@ -44,7 +44,7 @@ def short_trajectory(default_rig):
 @pytest.fixture(scope="session")
 def ci_simulation():
     """``configs/sim/ci_short.yaml`` simulated (trajectory, scene, landmarks, measurements), ~2 s."""
-    from ampc_vo.simulation import simulate
+    from ampc_vo.sim.simulation import simulate
 
     return simulate(CONFIGS / "sim" / "ci_short.yaml")
 

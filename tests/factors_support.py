@@ -7,7 +7,7 @@ import gtsam
 import numpy as np
 
 from ampc_vo.geometry import rot_z
-from ampc_vo.two_view import TwoViewProblem, make_two_view_problem
+from ampc_vo.sim.two_view import TwoViewProblem, make_two_view_problem
 
 JACOBIAN_RTOL = 1e-6
 

@@ -18,8 +18,8 @@ def fail_after(count: int) -> Iterator[int]:
 
 
 def log_then_stop(message: str) -> Iterator[int]:
-    logging.getLogger("ampc_vo.frontend").warning(message)
-    logging.getLogger("ampc_vo.frontend").debug("not shown at INFO")
+    logging.getLogger("ampc_vo.frontend.tracker").warning(message)
+    logging.getLogger("ampc_vo.frontend.tracker").debug("not shown at INFO")
     yield 1
 
 

@@ -1,0 +1,338 @@
+"""Initial relative motion between two keyframes from the minimal-solver RANSAC estimators.
+
+Per keyframe pair (DESIGN section 4): tractor RANSAC with the 2-point Ackermann solver (DESIGN
+2.1) on the tractor cameras' shared tracks, then the trailer RANSAC with the 1-point solver
+(DESIGN 2.2) given the tractor motion. In mode ``separate`` the trailer's own motion comes from
+the same 2-point solver applied to the trailer cameras and the trailer axle (a trailer is a rigid
+body with one rigid axle as well). Solver statuses are mapped to :class:`MotionStatus`; when a
+motion cannot be estimated the caller's constant-velocity prediction is used. With
+``scale.stereo_chord`` (a rig with an overlapping camera pair, KITTI) the tractor's yaw change and
+metric chord come from stereo points first (:func:`ampc_vo.scale.stereo.stereo_motion`, seeded
+by the prediction; the 2-point RANSAC only when that fails), and the chord becomes the keyframe's
+``scale_chord``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from ampc_vo.config import VoConfig
+from ampc_vo.epipolar import gec_sampson
+from ampc_vo.geometry import make_pose
+from ampc_vo.scale.ground import GroundScaleOptions, ground_plane_chord
+from ampc_vo.observations import FrameObservations, match_tracks
+from ampc_vo.rig import Camera, Rig
+from ampc_vo.backend.smoother import MotionInit, MotionStatus
+from ampc_vo.scale.stereo import StereoMotion, StereoScaleOptions, stereo_motion
+from ampc_vo.solvers import RansacConfig as SolverRansacConfig
+from ampc_vo.solvers import SolverStatus, TractorMotionEstimate, ackermann_motion, estimate_hitch_angles, estimate_tractor_motion, refine_joint
+
+logger = logging.getLogger(__name__)
+
+# yaw-change uncertainty given to the ground-plane chord: floor of the RANSAC's sigma, and the value
+# used when it has none (radians)
+_MIN_YAW_SIGMA = float(np.radians(0.01))
+_DEFAULT_YAW_SIGMA = float(np.radians(0.1))
+
+
+@dataclass(frozen=True)
+class CameraPairs:
+    """Shared tracks of one camera between views i and j: camera-frame and body-frame bearings."""
+
+    camera: Camera
+    track_ids: np.ndarray
+    bearings_i: np.ndarray
+    bearings_j: np.ndarray
+    body_bearings_i: np.ndarray
+    body_bearings_j: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.track_ids.shape[0])
+
+    def as_group(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(body_bearings_i, body_bearings_j, center)``, the group the solvers take."""
+        return self.body_bearings_i, self.body_bearings_j, self.camera.center
+
+
+def camera_pairs(rig: Rig, body: str, first: FrameObservations, second: FrameObservations) -> list[CameraPairs]:
+    """Shared tracks of every camera on ``body`` between two frames (cameras without any are skipped)."""
+    pairs = []
+    for camera in rig.cameras_on(body):
+        observations_i = first.cameras.get(camera.name)
+        observations_j = second.cameras.get(camera.name)
+        if observations_i is None or observations_j is None or len(observations_i) == 0 or len(observations_j) == 0:
+            continue
+        index_i, index_j = match_tracks(observations_i, observations_j)
+        if index_i.size == 0:
+            continue
+        bearings_i, bearings_j = observations_i.bearings[index_i], observations_j.bearings[index_j]
+        R_body_camera = camera.R_body_camera
+        pairs.append(CameraPairs(camera, observations_i.track_ids[index_i], bearings_i, bearings_j, bearings_i @ R_body_camera.T, bearings_j @ R_body_camera.T))
+    return pairs
+
+
+def _solver_config(config: VoConfig, cameras: list[Camera]) -> SolverRansacConfig:
+    """The solvers' RANSAC options from the VO config: the pixel threshold over the mean focal."""
+    focal = float(np.mean([0.5 * (camera.fx + camera.fy) for camera in cameras])) if cameras else 500.0
+    standstill = {} if config.ransac.standstill_parallax_px is None else {"standstill_parallax": config.ransac.standstill_parallax_px / focal}
+    return SolverRansacConfig(
+        **standstill,
+        sampson_threshold=config.ransac.threshold_px / focal,
+        confidence=config.ransac.confidence,
+        max_iterations=config.ransac.max_iterations,
+        min_inliers=config.ransac.min_inliers,
+        min_chord=config.keyframes.standstill_distance_m,
+        chord_direction_sigma=np.radians(config.ransac.model_direction_sigma_deg),
+        seed=config.ransac.seed,
+    )
+
+
+def _status(solver_status: SolverStatus) -> MotionStatus:
+    if solver_status is SolverStatus.OK:
+        return MotionStatus.OK
+    if solver_status is SolverStatus.SCALE_UNOBSERVABLE:
+        return MotionStatus.SCALE_UNOBSERVABLE
+    if solver_status is SolverStatus.STANDSTILL:
+        return MotionStatus.STANDSTILL
+    return MotionStatus.TOO_FEW_TRACKS
+
+
+def _inlier_tracks(pairs: list[CameraPairs], inlier_masks: list[np.ndarray]) -> dict[str, np.ndarray]:
+    """Track ids RANSAC kept, per camera (the observations the smoother may use)."""
+    if len(inlier_masks) != len(pairs):
+        return {}
+    return {pair.camera.name: pair.track_ids[np.asarray(mask, dtype=bool)] for pair, mask in zip(pairs, inlier_masks) if len(mask) == len(pair)}
+
+
+def _chord_of(T_i_j: np.ndarray, axle_x: float) -> float:
+    """Signed chord of the axle midpoint for an Ackermann motion (DESIGN 2 (NH))."""
+    axle = np.array([axle_x, 0.0, 0.0])
+    displacement = T_i_j[:3, :3] @ axle + T_i_j[:3, 3] - axle
+    yaw = float(np.arctan2(T_i_j[1, 0], T_i_j[0, 0]))
+    return float(np.dot(displacement[:2], [np.cos(0.5 * yaw), np.sin(0.5 * yaw)]))
+
+
+def straight_motion(chord: float) -> np.ndarray:
+    """A straight motion of ``chord`` metres along x (a prediction when nothing better is known)."""
+    return make_pose(np.eye(3), np.array([chord, 0.0, 0.0]))
+
+
+@dataclass(frozen=True)
+class TractorMotion:
+    """Tractor motion of a frame relative to the last keyframe: what keyframe selection needs."""
+
+    T_i_j: np.ndarray
+    status: MotionStatus
+    estimate: TractorMotionEstimate
+    shared_tracks: int
+    scale_chord: tuple[float, float] | None = None  # measured axle chord (stereo_scale): (chord m, sigma m)
+
+    @property
+    def chord(self) -> float:
+        return float(np.linalg.norm(self.T_i_j[:2, 3]))
+
+    @property
+    def yaw_change(self) -> float:
+        return float(np.arctan2(self.T_i_j[1, 0], self.T_i_j[0, 0]))
+
+
+class MotionInitializer:
+    """Runs the RANSAC estimators between a keyframe and a later frame (module docstring)."""
+
+    def __init__(self, rig: Rig, config: VoConfig) -> None:
+        self.rig = rig
+        self.config = config
+        self._tractor_config = _solver_config(config, rig.cameras_on("tractor"))
+        self._trailer_config = _solver_config(config, rig.cameras_on("trailer")) if rig.has_trailer else None
+        self._rng = np.random.default_rng(config.ransac.seed)
+        self.use_trailer = rig.has_trailer and config.mode != "tractor_only"
+        self._ground_options = GroundScaleOptions(
+            ground_z=config.scale.ground_z_m, pixel_sigma=config.smoother.pixel_sigma, height_sigma_m=config.scale.ground_height_sigma_m,
+            normal_sigma=float(np.radians(config.scale.ground_normal_sigma_deg)))
+        self._stereo_options = StereoScaleOptions(pixel_sigma=config.smoother.pixel_sigma, max_depth_m=config.scale.stereo_max_depth_m)
+
+    def tractor(self, first: FrameObservations, second: FrameObservations, predicted: np.ndarray, prediction_sigma: float | None = None) -> TractorMotion:
+        """Tractor motion ``T_first_second``; ``predicted`` (constant velocity) fills what is unknown:
+        the chord in straight driving and everything when there are too few tracks. With
+        ``prediction_sigma`` (metres) the RANSAC chord is fused with the predicted one (the 2-point
+        chord is weak on gentle curves, DESIGN 2.3; trucks change speed slowly)."""
+        pairs = camera_pairs(self.rig, "tractor", first, second)
+        shared = sum(len(pair) for pair in pairs)
+        predicted_chord = float(np.linalg.norm(predicted[:2, 3]))
+        if shared >= self.config.keyframes.min_tracks:
+            # an overlapping camera pair (scale.stereo_chord) gives metric yaw and chord directly from
+            # the constant-velocity guess; the 2-point RANSAC (about 2/3 of the per-frame time) is skipped
+            stereo = self._stereo_motion(first, second, predicted)
+            if stereo is not None:
+                return TractorMotion(stereo.T_i_j, MotionStatus.OK, self._stereo_estimate(pairs, stereo), shared, stereo.as_scale_chord())
+        estimate = estimate_tractor_motion(pairs, self.rig.axle_x("tractor"), self._tractor_config, chord_prior=max(predicted_chord, 1e-3), rng=self._rng)
+        status = _status(estimate.status)
+        if shared < self.config.keyframes.min_tracks:
+            status = MotionStatus.TOO_FEW_TRACKS
+        if status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and estimate.T_i_j is not None:
+            stereo = self._stereo_motion(first, second, estimate.T_i_j)   # second chance, from the RANSAC motion
+            if stereo is not None:
+                return TractorMotion(stereo.T_i_j, MotionStatus.OK, estimate, shared, stereo.as_scale_chord())
+        if status is MotionStatus.STANDSTILL:
+            T_i_j = np.eye(4)
+        elif status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and estimate.T_i_j is not None:
+            T_i_j = estimate.T_i_j
+            if status is MotionStatus.OK and prediction_sigma is not None:
+                T_i_j = self._fuse_chord(estimate, predicted_chord, prediction_sigma)
+        else:
+            status = MotionStatus.TOO_FEW_TRACKS
+            T_i_j = predicted
+        return TractorMotion(T_i_j, status, estimate, shared)
+
+    def _stereo_motion(self, first: FrameObservations, second: FrameObservations, T_guess: np.ndarray) -> StereoMotion | None:
+        """Tractor yaw change and axle chord from stereo points (:func:`ampc_vo.scale.stereo.stereo_motion`)
+        when ``scale.stereo_chord`` is on, the measurement succeeds and the tractor moved (the 2-point
+        solver's standstill or unobservable scale in straight driving are overruled), else ``None``."""
+        if not self.config.scale.stereo_chord:
+            return None
+        measured = stereo_motion(self.rig, "tractor", first, second, T_guess, self.rig.axle_x("tractor"), self._stereo_options)
+        if not measured.ok:
+            logger.debug("frames %d-%d: no stereo motion (%s)", first.frame, second.frame, measured.status.value)
+            return None
+        if abs(measured.chord) < self.config.keyframes.standstill_distance_m:
+            return None
+        return measured
+
+    def _stereo_estimate(self, pairs: list[CameraPairs], stereo: StereoMotion) -> TractorMotionEstimate:
+        """The 2-point RANSAC's result type for a stereo motion: per-camera inliers are the shared
+        tracks whose Sampson GEC residual under it is below the RANSAC threshold (DESIGN 2.1)."""
+        rotation, translation = stereo.T_i_j[:3, :3], stereo.T_i_j[:3, 3]
+        threshold = self._tractor_config.sampson_threshold
+        masks = [np.abs(gec_sampson(pair.body_bearings_i, pair.body_bearings_j, rotation, translation, pair.camera.center)) < threshold for pair in pairs]
+        count = int(sum(int(np.count_nonzero(mask)) for mask in masks))
+        return TractorMotionEstimate(SolverStatus.OK, stereo.yaw_change, stereo.chord, stereo.T_i_j, masks, count, chord_sigma=stereo.chord_sigma)
+
+    def _with_chord(self, T_i_j: np.ndarray, chord: float) -> np.ndarray:
+        """The Ackermann motion (DESIGN 2 (NH)) of ``T_i_j``'s yaw change and direction with the axle chord ``chord``."""
+        yaw_change = float(np.arctan2(T_i_j[1, 0], T_i_j[0, 0]))
+        direction = 1.0 if _chord_of(T_i_j, self.rig.axle_x("tractor")) >= 0.0 else -1.0
+        return make_pose(*ackermann_motion(yaw_change, direction * chord, self.rig.axle_x("tractor")))
+
+    def _fuse_chord(self, estimate: TractorMotionEstimate, predicted_chord: float, prediction_sigma: float) -> np.ndarray:
+        """Inverse-variance fusion of the RANSAC chord with the constant-velocity prediction; the yaw
+        change is kept and the motion rebuilt with the Ackermann model (DESIGN 2 (NH))."""
+        chord_sigma = estimate.chord_sigma if np.isfinite(estimate.chord_sigma) and estimate.chord_sigma > 0 else np.inf
+        weight_measured = 0.0 if not np.isfinite(chord_sigma) else 1.0 / chord_sigma**2
+        weight_predicted = 1.0 / prediction_sigma**2
+        chord = (weight_measured * abs(estimate.chord) + weight_predicted * predicted_chord) / (weight_measured + weight_predicted)
+        chord *= np.sign(estimate.chord) if estimate.chord != 0 else 1.0
+        return make_pose(*ackermann_motion(estimate.yaw_change, chord, self.rig.axle_x("tractor")))
+
+    def keyframe(self, first: FrameObservations, second: FrameObservations, tractor: TractorMotion,
+                 hitch_prior: float | None, predicted_trailer: np.ndarray | None = None) -> MotionInit:
+        """The :class:`MotionInit` of a new keyframe given its tractor motion (see :meth:`tractor`)."""
+        tractor_pairs = camera_pairs(self.rig, "tractor", first, second)
+        inliers = {}
+        if tractor.status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE, MotionStatus.STANDSTILL):
+            inliers = _inlier_tracks(tractor_pairs, tractor.estimate.inlier_masks)
+        if not self.use_trailer:
+            return self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=inliers, scale_chord=tractor.scale_chord), tractor_pairs,
+                                           first, second, tractor.estimate.yaw_sigma)
+        hitch_prev = hitch = None
+        trailer_status = MotionStatus.TOO_FEW_TRACKS
+        trailer_pairs = camera_pairs(self.rig, "trailer", first, second)
+        trailer_axle_x = self.rig.axle_x("trailer")
+        if tractor.status is MotionStatus.STANDSTILL:
+            trailer_status = MotionStatus.STANDSTILL
+        elif tractor.status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and sum(len(p) for p in trailer_pairs) >= self.config.keyframes.min_tracks:
+            estimate = estimate_hitch_angles(
+                trailer_pairs, (tractor.yaw_change, tractor.T_i_j[:3, 3]), trailer_axle_x, self._trailer_config,
+                prior_hitch_angle=hitch_prior, rng=self._rng,
+            )
+            if estimate.ok and self.config.mode in ("full", "no_trailer_constraint"):
+                # joint refinement over both bodies (DESIGN 2.3: ~3x better with the trailer constraint);
+                # the trailer inliers are then re-classified under the refined tractor motion
+                # a straight tractor (chord from the prediction) still gets its scale from the trailer
+                # when the hitch angle is not zero: refine from the motion actually used
+                seed = dataclasses.replace(tractor.estimate, yaw_change=tractor.yaw_change, chord=_chord_of(tractor.T_i_j, self.rig.axle_x("tractor")), T_i_j=tractor.T_i_j)
+                joint = refine_joint(
+                    tractor_pairs, trailer_pairs, seed, estimate,
+                    self.rig.axle_x("tractor"), trailer_axle_x, self._tractor_config, trailer_nonholonomic=self.config.mode == "full",
+                )
+                refined_chord = _chord_of(joint.T_i_j, self.rig.axle_x("tractor")) if joint.ok and np.all(np.isfinite(joint.T_i_j)) else float("nan")
+                if joint.ok and not (abs(seed.chord) > 1e-9 and 0.5 <= refined_chord / seed.chord <= 2.0):
+                    # near-straight with a small hitch angle the trailer's scale is as weak as the
+                    # tractor's (DESIGN 2.3): a reversed or far-off chord is a spurious minimum
+                    logger.debug("frame %d: joint refinement chord %.2f m against %.2f m: kept the tractor estimate", second.frame, refined_chord, seed.chord)
+                elif joint.ok:
+                    status = MotionStatus.OK if tractor.status is MotionStatus.SCALE_UNOBSERVABLE else tractor.status
+                    tractor = TractorMotion(joint.T_i_j, status, tractor.estimate, tractor.shared_tracks, tractor.scale_chord)
+                    estimate = estimate_hitch_angles(
+                        trailer_pairs, (tractor.yaw_change, tractor.T_i_j[:3, 3]), trailer_axle_x, self._trailer_config,
+                        prior_hitch_angle=hitch_prior, rng=self._rng,
+                    )
+            if estimate.ok:
+                hitch_prev, hitch, trailer_status = estimate.hitch_angle_i, estimate.hitch_angle_j, MotionStatus.OK
+                inliers.update(_inlier_tracks(trailer_pairs, estimate.inlier_masks))
+        T_trailer = None
+        if self.config.mode == "separate":
+            predicted = predicted_trailer if predicted_trailer is not None else straight_motion(tractor.chord)
+            if tractor.status is MotionStatus.STANDSTILL:
+                T_trailer, trailer_status = np.eye(4), MotionStatus.STANDSTILL
+            else:
+                chord_prior = max(float(np.linalg.norm(predicted[:2, 3])), 1e-3)
+                own = estimate_tractor_motion(trailer_pairs, trailer_axle_x, self._trailer_config, chord_prior=chord_prior, rng=self._rng)
+                trailer_status = _status(own.status)
+                if sum(len(p) for p in trailer_pairs) < self.config.keyframes.min_tracks:
+                    trailer_status = MotionStatus.TOO_FEW_TRACKS
+                if trailer_status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and own.T_i_j is not None:
+                    T_trailer = own.T_i_j
+                    inliers.update(_inlier_tracks(trailer_pairs, own.inlier_masks))
+                else:
+                    trailer_status = MotionStatus.TOO_FEW_TRACKS if trailer_status is not MotionStatus.STANDSTILL else trailer_status
+                    T_trailer = predicted
+        return self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer, inlier_tracks=inliers,
+                                                  scale_chord=tractor.scale_chord), tractor_pairs, first, second, tractor.estimate.yaw_sigma)
+
+    def measured_chord(self, first: FrameObservations, second: FrameObservations, tractor: TractorMotion) -> tuple[float, float] | None:
+        """The metric tractor axle chord ``(chord m, sigma m)`` of a motion measured by the ground
+        plane (and the stereo pair, if any), ``None`` when neither measures it: what the scale
+        bootstrap uses on a straight start (DESIGN 2.3), where the 2-point chord is unobservable."""
+        if tractor.status not in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE):
+            return None
+        pairs = camera_pairs(self.rig, "tractor", first, second)
+        init = MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=_inlier_tracks(pairs, tractor.estimate.inlier_masks), scale_chord=tractor.scale_chord)
+        return self._with_ground_scale(init, pairs, first, second, tractor.estimate.yaw_sigma).scale_chord
+
+    def _with_ground_scale(self, init: MotionInit, pairs: list[CameraPairs], first: FrameObservations, second: FrameObservations, yaw_sigma: float) -> MotionInit:
+        """``init`` with ``scale_chord`` from the ground plane (``scale.ground_plane``): the metric
+        chord of the tractor axle measured from road points of the tractor cameras
+        (:mod:`ampc_vo.scale.ground`), given the final tractor motion's rotation and direction and
+        the RANSAC's ``yaw_sigma`` (radians; a side camera's chord is sensitive to yaw errors);
+        ``pairs``: the tractor cameras' correspondences of ``first`` and ``second``.
+        An existing ``scale_chord`` (stereo) is fused with it (inverse variance); a scale-unobservable
+        motion is re-initialised with the measured chord."""
+        if not self.config.scale.ground_plane or init.tractor_status not in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE):
+            return init
+        correspondences = []
+        for pair in pairs:
+            inlier_ids = init.inlier_tracks.get(pair.camera.name)
+            keep = np.isin(pair.track_ids, inlier_ids) if inlier_ids is not None else np.ones(len(pair), bool)
+            correspondences.append((pair.camera, pair.bearings_i[keep], pair.bearings_j[keep]))
+        yaw_sigma = max(float(yaw_sigma), _MIN_YAW_SIGMA) if np.isfinite(yaw_sigma) else _DEFAULT_YAW_SIGMA
+        measured = ground_plane_chord(correspondences, init.T_tractor, self.rig.axle_x("tractor"), self._ground_options, yaw_sigma)
+        if not measured.ok:
+            logger.debug("frame %d: no ground-plane chord (%s, %d candidates)", second.frame, measured.status.value, measured.candidates)
+            return init
+        logger.debug("frames %d-%d: ground-plane chord %.4f +- %.4f m from %d road points (yaw sigma %.3f deg)",
+                     first.frame, second.frame, measured.chord, measured.sigma, measured.inlier_count, np.degrees(yaw_sigma))
+        chord, sigma = measured.chord, measured.sigma
+        if init.scale_chord is not None:  # independent measurements of the same chord
+            other_chord, other_sigma = init.scale_chord
+            weights = np.array([1.0 / sigma**2, 1.0 / other_sigma**2])
+            chord, sigma = float(weights @ [chord, other_chord] / weights.sum()), float(1.0 / np.sqrt(weights.sum()))
+        T_tractor = init.T_tractor
+        if init.tractor_status is MotionStatus.SCALE_UNOBSERVABLE:  # a better initial value than the predicted chord
+            axle_x = self.rig.axle_x("tractor")
+            sign = 1.0 if _chord_of(T_tractor, axle_x) >= 0.0 else -1.0
+            T_tractor = make_pose(*ackermann_motion(float(np.arctan2(T_tractor[1, 0], T_tractor[0, 0])), sign * chord, axle_x))
+        return dataclasses.replace(init, T_tractor=T_tractor, scale_chord=(chord, sigma))
+

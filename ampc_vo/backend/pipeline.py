@@ -1,0 +1,361 @@
+"""Odometry pipeline: frames of observations in, keyframe estimates out (DESIGN section 4).
+
+Measurement sources are pluggable: anything that yields :class:`FrameObservations` in time order
+(the simulator's ``Measurements.frames(rig)``, the image frontend). Per frame:
+
+1. tractor RANSAC against the last keyframe (2-point solver, DESIGN 2.1), with a constant-velocity
+   prediction filling what it cannot observe;
+2. keyframe decision (:class:`KeyframePolicy`): moved ``min_distance_m``, turned
+   ``min_rotation_deg``, ``max_interval_s`` elapsed, or tracks about to be lost;
+3. for a keyframe: trailer RANSAC (1-point solver, DESIGN 2.2), then the smoother update, which
+   publishes tractor pose, trailer pose, hitch angle and 1-sigma; these are written to the output
+   files at once (:class:`~ampc_vo.io.outputs.OutputWriter`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from ampc_vo.config import VoConfig, save_config
+from ampc_vo.geometry import make_pose, relative_pose, rot_z, yaw_of
+from ampc_vo.backend.motion_init import MotionInitializer, TractorMotion, camera_pairs
+from ampc_vo.observations import FrameObservations
+from ampc_vo.io.outputs import OutputWriter
+from ampc_vo.rig import Rig
+from ampc_vo.backend.smoother import ArticulatedSmoother, KeyframeEstimate, MotionStatus
+
+logger = logging.getLogger(__name__)
+
+TIMING_FILE = "timing.json"
+
+
+@dataclass(frozen=True)
+class KeyframeDecision:
+    is_keyframe: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class KeyframePolicy:
+    """Keyframe selection from the tractor motion since the last keyframe (config ``keyframes``)."""
+
+    min_distance_m: float
+    min_rotation_rad: float
+    max_interval_s: float
+
+    @staticmethod
+    def from_config(config: VoConfig) -> "KeyframePolicy":
+        keyframes = config.keyframes
+        return KeyframePolicy(keyframes.min_distance_m, np.radians(keyframes.min_rotation_deg), keyframes.max_interval_s)
+
+    def decide(self, motion: TractorMotion, elapsed_s: float) -> KeyframeDecision:
+        if motion.status is MotionStatus.TOO_FEW_TRACKS:
+            return KeyframeDecision(True, "too few tracks")
+        if elapsed_s >= self.max_interval_s - 1e-9:
+            return KeyframeDecision(True, "interval")
+        if motion.status is MotionStatus.STANDSTILL:
+            return KeyframeDecision(False, "standstill")
+        if motion.chord >= self.min_distance_m:
+            return KeyframeDecision(True, "distance")
+        if abs(motion.yaw_change) >= self.min_rotation_rad:
+            return KeyframeDecision(True, "rotation")
+        return KeyframeDecision(False, "moving")
+
+
+@dataclass
+class RunSummary:
+    """What a run did and how long it took (written to ``timing.json``)."""
+
+    frames: int = 0
+    keyframes: int = 0
+    distance_m: float = 0.0
+    seconds: float = 0.0
+    seconds_per_frame: float = 0.0
+    frames_per_second: float = 0.0
+    backend_ms_median: float = 0.0
+    backend_ms_breakdown: dict = field(default_factory=dict)
+    statuses: dict = field(default_factory=dict)
+    mode: str = "full"
+    dataset: str | None = None  # the folder the frames came from (absolute; evaluate.py checks it)
+
+
+class OdometryPipeline:
+    """Keyframe selection, initialisation and smoothing over a stream of frames (module docstring)."""
+
+    def __init__(self, rig: Rig, config: VoConfig, writer: OutputWriter | None = None,
+                 wheel_odometry: Callable[[float, float], float] | None = None) -> None:
+        """``wheel_odometry(t_i, t_j)``: chord (m) of the tractor axle midpoint between two times,
+        used when ``scale.wheel_speed`` is on (the optional WheelSpeedFactor)."""
+        self.rig = rig
+        self.wheel_odometry = wheel_odometry
+        self.config = config
+        self.writer = writer
+        self.policy = KeyframePolicy.from_config(config)
+        self.initializer = MotionInitializer(rig, config)
+        self.smoother = ArticulatedSmoother(rig, config)
+        self.estimates: list[KeyframeEstimate] = []
+        self._last_keyframe: FrameObservations | None = None
+        self._velocity: np.ndarray | None = None  # last tractor motion per second: (yaw rate, speed)
+        self._trailer_velocity: tuple[float, float] | None = None
+        self._hitch: float | None = None
+        self._frames = 0
+        self._distance = 0.0
+        self._statuses: dict[str, int] = {}
+        self._bootstrapping = True
+        self._bootstrap: list[tuple[FrameObservations, TractorMotion | None]] = []
+        self._bootstrap_speeds: list[float | None] = []  # measured metric speed of each bootstrap pair
+
+    # ------------------------------------------------------------------ prediction
+    def _predicted(self, elapsed_s: float, velocity: tuple[float, float] | None) -> np.ndarray:
+        """Constant-velocity tractor (or trailer) motion over ``elapsed_s``: arc of the last yaw rate
+        and speed (a straight 1 m/s guess before any motion was estimated)."""
+        yaw_rate, speed = velocity if velocity is not None else (0.0, 1.0)
+        yaw = yaw_rate * elapsed_s
+        chord = speed * elapsed_s
+        return make_pose(rot_z(yaw), chord * np.array([np.cos(0.5 * yaw), np.sin(0.5 * yaw), 0.0]))
+
+    # ------------------------------------------------------------------ frames
+    def process(self, frame: FrameObservations) -> list[KeyframeEstimate]:
+        """Consume one frame; returns the estimates published by it (often none)."""
+        self._frames += 1
+        if self._last_keyframe is None:
+            self._last_keyframe = frame
+            self._bootstrap.append((frame, None))
+            return []
+        elapsed = frame.timestamp - self._last_keyframe.timestamp
+        if elapsed <= 0:
+            logger.warning("frame %d: timestamp %.6f not after the last keyframe's %.6f: skipped", frame.frame, frame.timestamp, self._last_keyframe.timestamp)
+            return []
+        if self._bootstrapping:
+            return self._process_bootstrap(frame, elapsed)
+        predicted = self._predicted(elapsed, self._velocity)
+        if self._clearly_no_keyframe(frame, predicted, elapsed):
+            return []
+        # constant-speed prediction: sigma from the smooth-speed acceleration sigma (DESIGN 2.3)
+        acceleration = self.config.scale.smooth_speed_sigma_mps2 or 1.0
+        predicted_chord = float(np.linalg.norm(predicted[:2, 3]))
+        prediction_sigma = 0.1 + 0.25 * predicted_chord + acceleration * elapsed**2
+        tractor = self.initializer.tractor(self._last_keyframe, frame, predicted, prediction_sigma if self._velocity is not None else None)
+        decision = self.policy.decide(tractor, elapsed)
+        if not decision.is_keyframe:
+            return []
+        return self._add_keyframe(frame, tractor, elapsed)
+
+    def _clearly_no_keyframe(self, frame: FrameObservations, predicted: np.ndarray, elapsed: float) -> bool:
+        """True when the constant-velocity prediction is far below the keyframe thresholds
+        (``keyframes.prediction_gate``) and the tracks shared with the last keyframe are plenty:
+        the frame cannot be a keyframe and its tractor RANSAC is skipped (about 20 ms per frame)."""
+        gate = self.config.keyframes.prediction_gate
+        if gate <= 0.0 or self._velocity is None or elapsed >= gate * self.policy.max_interval_s:
+            return False
+        if np.linalg.norm(predicted[:2, 3]) >= gate * self.config.keyframes.min_distance_m or abs(yaw_of(predicted)) >= gate * self.policy.min_rotation_rad:
+            return False
+        shared = sum(len(pair) for pair in camera_pairs(self.rig, "tractor", self._last_keyframe, frame))
+        return shared >= 4 * self.config.keyframes.min_tracks
+
+    def _add_keyframe(self, frame: FrameObservations, tractor: TractorMotion, elapsed: float) -> list[KeyframeEstimate]:
+        predicted_trailer = self._predicted(elapsed, self._trailer_velocity) if self._trailer_velocity is not None else None
+        init = self.initializer.keyframe(self._last_keyframe, frame, tractor, self._hitch, predicted_trailer)
+        if self.config.scale.wheel_speed and self.wheel_odometry is not None:
+            init = dataclasses.replace(init, wheel_chord=float(self.wheel_odometry(self._last_keyframe.timestamp, frame.timestamp)))
+        self._statuses[init.tractor_status.value] = self._statuses.get(init.tractor_status.value, 0) + 1
+        if self.smoother.keyframe_count == 0:
+            self.smoother.add_keyframe(self._last_keyframe, _first_init())
+        published = self.smoother.add_keyframe(frame, init)
+        self._last_keyframe = frame
+        self._after_publish(published)
+        return published
+
+    # ------------------------------------------------------------------ scale bootstrap
+    def _process_bootstrap(self, frame: FrameObservations, elapsed: float) -> list[KeyframeEstimate]:
+        """Before metric scale was observed (straight start: DESIGN 2.3), keyframes are taken by
+        time or rotation and buffered; once ``bootstrap_pairs`` keyframe pairs had an observable
+        chord, their median speed scales the buffered straight motions and all are replayed."""
+        scale = self.config.scale
+        tractor = self.initializer.tractor(self._last_keyframe, frame, self._predicted(elapsed, None))
+        rotation = abs(tractor.yaw_change) >= self.policy.min_rotation_rad
+        observed = tractor.status is MotionStatus.OK and tractor.chord >= self.config.keyframes.standstill_distance_m
+        if not (observed or rotation or tractor.status is MotionStatus.TOO_FEW_TRACKS or elapsed >= scale.bootstrap_interval_s - 1e-9):
+            return []
+        measured = self.initializer.measured_chord(self._last_keyframe, frame, tractor)
+        self._bootstrap.append((frame, tractor))
+        self._bootstrap_speeds.append(None if measured is None else measured[0] / elapsed)
+        self._last_keyframe = frame
+        # a measured metric chord (ground plane, stereo) is preferred to the 2-point chord, which is
+        # weak on a straight start (DESIGN 2.3)
+        speeds = [measured_speed if measured_speed is not None else motion.chord / (kf.timestamp - previous.timestamp)
+                  for (previous, _), (kf, motion), measured_speed in zip(self._bootstrap, self._bootstrap[1:], self._bootstrap_speeds)
+                  if measured_speed is not None or (motion is not None and motion.status is MotionStatus.OK)]
+        waited = frame.timestamp - self._bootstrap[0][0].timestamp
+        if len(speeds) < scale.bootstrap_pairs and waited < scale.bootstrap_max_s:
+            return []
+        speed = float(np.median(speeds)) if speeds else 1.0
+        if not speeds:
+            logger.warning("frame %d: metric scale not observed within %.0f s (straight start?): assuming 1 m/s", frame.frame, waited)
+        else:
+            logger.info("frame %d: metric scale bootstrapped after %.1f s from %d keyframe pairs: %.2f m/s", frame.frame, waited, len(speeds), speed)
+        return self._replay_bootstrap(speed)
+
+    def _replay_bootstrap(self, speed: float) -> list[KeyframeEstimate]:
+        buffered, self._bootstrap = self._bootstrap, []
+        self._bootstrapping = False
+        self._last_keyframe = buffered[0][0]
+        published: list[KeyframeEstimate] = []
+        for (previous, _), (frame, tractor) in zip(buffered, buffered[1:]):
+            elapsed = frame.timestamp - previous.timestamp
+            if tractor.status is not MotionStatus.OK and tractor.status is not MotionStatus.STANDSTILL:
+                chord = speed * elapsed
+                direction = tractor.T_i_j[:3, 3] / max(np.linalg.norm(tractor.T_i_j[:3, 3]), 1e-12)
+                if tractor.status is MotionStatus.TOO_FEW_TRACKS:
+                    direction = np.array([1.0, 0.0, 0.0])
+                T_i_j = tractor.T_i_j.copy()
+                T_i_j[:3, 3] = direction * chord
+                tractor = TractorMotion(T_i_j, tractor.status, tractor.estimate, tractor.shared_tracks)
+            published += self._add_keyframe(frame, tractor, elapsed)
+        return published
+
+    def finish(self) -> list[KeyframeEstimate]:
+        """End of the stream: a bootstrap still waiting for scale is replayed with the 1 m/s guess;
+        with ``output.publish: lagged`` the keyframes still in the window are published."""
+        published: list[KeyframeEstimate] = []
+        if self._bootstrapping and len(self._bootstrap) > 1:
+            logger.warning("stream ended before metric scale was observed: assuming 1 m/s")
+            published += self._replay_bootstrap(1.0)
+        remaining = self.smoother.flush()
+        self._after_publish(remaining)
+        return published + remaining
+
+    def _after_publish(self, published: list[KeyframeEstimate]) -> None:
+        """Write what the smoother published and update the motion model from its newest keyframes."""
+        for estimate in published:
+            if self.estimates:
+                self._distance += float(np.linalg.norm(estimate.T_world_tractor[:2, 3] - self.estimates[-1].T_world_tractor[:2, 3]))
+            self.estimates.append(estimate)
+            if self.writer is not None:
+                self.writer.write(estimate.timestamp, estimate.T_world_tractor, estimate.T_world_trailer, estimate.hitch_angle, estimate.hitch_sigma)
+        window = self.smoother.window_indices()
+        if len(window) < 2:
+            return
+        newest, previous = self.smoother.estimate(window[-1]), self.smoother.estimate(window[-2])
+        if newest.hitch_angle is not None:
+            self._hitch = newest.hitch_angle
+        dt = newest.timestamp - previous.timestamp
+        if dt <= 0 or newest.tractor_status == MotionStatus.TOO_FEW_TRACKS.value:
+            return
+        motion = relative_pose(previous.T_world_tractor, newest.T_world_tractor)
+        self._velocity = (yaw_of(motion) / dt, float(np.linalg.norm(motion[:2, 3])) / dt)
+        if newest.T_world_trailer is not None and previous.T_world_trailer is not None:
+            trailer_motion = relative_pose(previous.T_world_trailer, newest.T_world_trailer)
+            self._trailer_velocity = (yaw_of(trailer_motion) / dt, float(np.linalg.norm(trailer_motion[:2, 3])) / dt)
+
+    def run(self, frames: Iterable[FrameObservations], total: int | None = None, progress: bool | None = None,
+            on_frame: Callable[[FrameObservations | None, list[KeyframeEstimate]], None] | None = None) -> RunSummary:
+        """Process every frame (with a tqdm progress bar if enabled) and summarise the run.
+        ``on_frame(frame, published)`` is called after every frame with the estimates it published,
+        and once more at the end with ``frame=None`` and the estimates :meth:`finish` published."""
+        show = self.config.output.progress if progress is None else progress
+        iterator = frames
+        bar = None
+        if show:
+            import sys
+
+            from tqdm import tqdm
+
+            # redrawn at most every 0.2 s on a terminal; every 10 s into a log file (no wall of lines)
+            bar = tqdm(frames, total=total, unit="frame", desc=f"odometry ({self.config.mode})", leave=False,
+                       mininterval=0.2 if sys.stderr.isatty() else 10.0)
+            iterator = bar
+        started = time.perf_counter()
+        # the backend's numpy work is on small arrays: BLAS threads would only spin, taking the
+        # core the frontend's process (or thread) runs on (whole pipeline 5-10 % faster)
+        blas_limit = threadpool_limits(limits=1, user_api="blas")
+        try:
+            for frame in iterator:
+                published = self.process(frame)
+                if on_frame is not None:
+                    on_frame(frame, published)
+                if bar is not None and self.estimates:
+                    last = self.estimates[-1]
+                    bar.set_postfix(kf=len(self.estimates), dist=f"{self._distance:.0f}m", hitch="-" if last.hitch_angle is None else f"{np.degrees(last.hitch_angle):.1f}°",
+                                    refresh=False)
+            remaining = self.finish()
+            if on_frame is not None:
+                on_frame(None, remaining)
+        except BaseException as error:
+            # an error in the source (or Ctrl-C): publish what the window holds, then re-raise
+            logger.error("run stopped at frame %d (%s): writing the keyframes still in the window", self._frames, type(error).__name__)
+            self._salvage()
+            raise
+        finally:
+            blas_limit.restore_original_limits()
+            if bar is not None:
+                bar.close()
+        return self.summary(time.perf_counter() - started)
+
+    def _salvage(self) -> None:
+        """Publish the keyframes still in the smoother's window after an interrupted run."""
+        try:
+            self._after_publish(self.smoother.flush())
+        except Exception as error:  # the run is already failing: keep its error, log this one
+            logger.error("could not publish the last window: %s", error)
+
+    def summary(self, seconds: float) -> RunSummary:
+        timings = self.smoother.timings
+        breakdown = {}
+        if timings:
+            for name in ("factors", "optimisation", "marginals"):
+                breakdown[name] = float(np.median([getattr(t, name) for t in timings]) * 1e3)
+        return RunSummary(
+            frames=self._frames, keyframes=len(self.estimates), distance_m=self._distance, seconds=seconds,
+            seconds_per_frame=seconds / max(self._frames, 1), frames_per_second=self._frames / seconds if seconds > 0 else 0.0,
+            backend_ms_median=float(np.median([t.total for t in timings]) * 1e3) if timings else 0.0,
+            backend_ms_breakdown=breakdown, statuses=dict(self._statuses), mode=self.config.mode,
+        )
+
+
+def _first_init():
+    from ampc_vo.backend.smoother import MotionInit
+
+    return MotionInit(np.eye(4), MotionStatus.FIRST)
+
+
+def run_on_frames(rig: Rig, config: VoConfig, frames: Iterable[FrameObservations], out_dir: str | Path | None = None, total: int | None = None, progress: bool | None = None,
+                  wheel_odometry: Callable[[float, float], float] | None = None,
+                  on_frame: Callable[[FrameObservations | None, list[KeyframeEstimate]], None] | None = None,
+                  source_seconds: list[float] | None = None, dataset: str | Path | None = None) -> tuple[RunSummary, list[KeyframeEstimate]]:
+    """Run the pipeline on any source of frames; with ``out_dir``, write the outputs incrementally,
+    ``timing.json`` and the config used (``config.yaml``). ``on_frame``: see
+    :meth:`OdometryPipeline.run`; ``source_seconds``: time spent producing each frame (the
+    frontend), filled while ``frames`` is consumed, added to the timing breakdown; ``dataset``:
+    the folder the frames come from, recorded in the summary."""
+    with_trailer = rig.has_trailer and config.mode != "tractor_only"
+    if out_dir is None:
+        pipeline = OdometryPipeline(rig, config, wheel_odometry=wheel_odometry)
+        return _with_source(pipeline.run(frames, total, progress, on_frame), source_seconds, dataset), pipeline.estimates
+    out_dir = Path(out_dir)
+    with OutputWriter(out_dir, with_trailer=with_trailer) as writer:  # creates out_dir, or OutputError
+        save_config(config, out_dir / "config.yaml")
+        pipeline = OdometryPipeline(rig, config, writer, wheel_odometry=wheel_odometry)
+        summary = _with_source(pipeline.run(frames, total, progress, on_frame), source_seconds, dataset)
+    if config.output.write_timing:
+        (out_dir / TIMING_FILE).write_text(json.dumps(asdict(summary), indent=2) + "\n", encoding="utf-8")
+    return summary, pipeline.estimates
+
+
+def _with_source(summary: RunSummary, source_seconds: list[float] | None, dataset: str | Path | None) -> RunSummary:
+    """``summary`` with the dataset folder and the median time per frame of the measurement source
+    as ``frontend`` (ms)."""
+    if dataset is not None:
+        summary = dataclasses.replace(summary, dataset=str(Path(dataset).resolve()))
+    if not source_seconds:
+        return summary
+    breakdown = {"frontend": float(np.median(source_seconds) * 1e3), **summary.backend_ms_breakdown}
+    return dataclasses.replace(summary, backend_ms_breakdown=breakdown)

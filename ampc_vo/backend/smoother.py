@@ -1,0 +1,705 @@
+"""Sliding-window smoother over tractor poses, trailer poses and hitch angles (DESIGN section 3).
+
+Variables per keyframe k: ``X(k)`` ``T_world_tractor`` (Pose3), ``Y(k)`` ``T_world_trailer``
+(Pose3), ``A(k)`` the hitch angle θ (double), in a ``gtsam.BatchFixedLagSmoother`` whose lag is
+in seconds (keys carry their keyframe's timestamp; older keys are marginalised).
+
+Factors added with keyframe k (``j`` < k are the keyframes still in the window):
+
+* GEC (paper eq. (1)): tractor cameras on ``X(j), X(k)``, trailer cameras on ``Y(j), Y(k)``, for
+  every pair with ``k - j <= max_pair_gap`` that shares enough tracks and moved (the residual is
+  undefined at standstill); with ``scale.cross_camera`` also **cross-camera** blocks: camera a at
+  keyframe j and camera b != a of the same body at k, associated by equal
+  ``CameraObservations.landmark_ids`` (two-camera / Plücker form, ``c_i != c_j``), which make
+  metric scale observable in straight driving (DESIGN 2.3), up to ``cross_camera_max_gap``
+  keyframes apart in the joint modes (``max_pair_gap`` in ``tractor_only`` and ``separate``, where
+  longer gaps made the scale collapse on the demo route), gated at ``cross_camera_gate_px``. All
+  blocks of keyframe k form one :class:`factors.StackedEpipolarFactor` (6 rows per keyframe pair
+  for GTSAM, Huber per correspondence inside): one Python call per evaluation (issue 5 timing).
+  Outliers: an observation is used only if the RANSAC of its keyframe pair (k-1, k) kept it
+  (``MotionInit.inlier_tracks``; per-frame outliers otherwise survive into longer pairs and a
+  handful of them, through their large Sampson Jacobians, biased the window by metres), then
+  gated by its Sampson residual under the initial poses; Huber (Scalar reweighting) on the rest.
+* Between consecutive keyframes: non-holonomic (DESIGN (NH)) of the tractor; of the trailer
+  (modes ``full``, ``separate``); planar motion of each body; a hitch random walk ``A(k-1) ->
+  A(k)`` whose sigma grows with distance and time, so an unobservable θ holds its value with a
+  growing sigma.
+* ``JointLoopFactor(X(k), Y(k), A(k))`` (paper eqs. (3)-(5)) in modes ``full`` and
+  ``no_trailer_constraint``.
+* Scale aid: ``SmoothSpeedFactor`` over ``X(k-2), X(k-1), X(k)`` (and the trailer in
+  ``separate``), DESIGN 2.3.
+* Recovery: at standstill a tight zero-motion prior; when a body has no motion estimate (too few
+  tracks) or an unobservable scale, a weak prior on the predicted motion keeps the system
+  well-posed.
+
+The small residuals of keyframe k (planar, non-holonomic, motion priors, joint loop, scale chord)
+are terms of one :class:`factors.stacked.StackedFactor` (same error and linear system as one
+factor each); the smooth-speed prior keeps a factor of its own (it reaches back to k-2). Every
+Python factor caches its last evaluation (:mod:`factors._custom`), so LM's repeated evaluations
+at the same values and the marginals' linearisation cost no numpy work. LM stops after a
+relative error decrease below ``lm_relative_error_tol`` or after ``VoConfig.lm_iterations`` steps
+(one per update when keyframes are published as they leave the window; the first step is damped,
+``lm_lambda_initial`` 1.0, against overshooting along the weakly observable scale).
+
+Modes (issue 5): ``full``; ``tractor_only`` (no Y, A); ``no_trailer_constraint`` (no trailer NH);
+``separate`` (no joint loop and no A: each body on its own cameras, θ afterwards from the two
+trajectories: the hitch displacement is common to both bodies, so for a keyframe pair
+``θ_i = heading(t_tractor) - heading(t_trailer)`` and ``θ_j = θ_i + ψ - φ``).
+
+Every keyframe publishes the poses, θ and its 1-sigma from ``gtsam.Marginals``: at once
+(``output.publish: latest``, causal) or when it leaves the window (``lagged``, fully smoothed,
+the default). An update that fails (ill-conditioned window) is retried with the new keyframe
+anchored to its initial motion, and as a last resort the smoother restarts at that keyframe.
+Priors on relative poses use ``factors.relative_pose.RelativePoseFactor``, not gtsam's
+``BetweenFactorPose3``, whose Jacobian is NaN near the identity in gtsam 4.3.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from functools import partial
+from dataclasses import dataclass, field
+from enum import Enum
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import A, X, Y
+
+from ampc_vo.config import VoConfig
+from ampc_vo.epipolar import gec_sampson
+from ampc_vo.geometry import make_pose, relative_pose, rot_z, wrap_angle, yaw_of
+from ampc_vo.observations import CameraObservations, FrameObservations, match_tracks, usable_landmarks
+from ampc_vo.rig import Camera, Rig
+from factors._custom import POSE, SCALAR
+from factors.epipolar import EpipolarBlock
+from factors.joint_loop import joint_loop_error
+from factors.nonholonomic import nonholonomic_error
+from factors.planar import planar_motion_error
+from factors.relative_pose import relative_pose_error
+from factors.stacked import StackedFactor, Term
+from factors.wheel_speed import chord_error
+from factors.relative_pose import RelativePoseFactor
+from factors.smooth_speed import SmoothSpeedFactor
+
+logger = logging.getLogger(__name__)
+
+
+class MotionStatus(str, Enum):
+    """What is known about a body's motion from the previous keyframe to this one."""
+
+    OK = "ok"
+    SCALE_UNOBSERVABLE = "scale_unobservable"  # direction and rotation known, chord predicted
+    STANDSTILL = "standstill"
+    TOO_FEW_TRACKS = "too_few_tracks"  # motion predicted (constant velocity)
+    FIRST = "first"
+
+
+@dataclass(frozen=True)
+class MotionInit:
+    """Initial values for a new keyframe relative to the previous one (from the minimal solvers).
+
+    ``T_tractor`` (4x4): tractor motion ``T_prev_k``. ``hitch_prev``/``hitch`` (θ at the previous
+    keyframe and at this one) from the trailer 1-point RANSAC, ``None`` if not estimated.
+    ``T_trailer``: the trailer's own motion (mode ``separate``), ``None`` if not estimated.
+    """
+
+    T_tractor: np.ndarray
+    tractor_status: MotionStatus
+    hitch_prev: float | None = None
+    hitch: float | None = None
+    trailer_status: MotionStatus = MotionStatus.TOO_FEW_TRACKS
+    T_trailer: np.ndarray | None = None
+    inlier_tracks: dict[str, np.ndarray] = field(default_factory=dict)  # per camera: RANSAC inliers of (k-1, k)
+    wheel_chord: float | None = None  # measured chord of the tractor axle midpoint (wheel odometry), metres
+    # visual metric-scale measurement of the same chord (e.g. ground-plane scale): (chord m, sigma m)
+    scale_chord: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class KeyframeEstimate:
+    """What the smoother publishes for one keyframe (``hitch_*`` and trailer ``None`` when absent)."""
+
+    index: int
+    frame: int
+    timestamp: float
+    T_world_tractor: np.ndarray
+    T_world_trailer: np.ndarray | None
+    hitch_angle: float | None
+    hitch_sigma: float | None
+    tractor_status: str
+    trailer_status: str
+
+
+@dataclass
+class BackendTiming:
+    """Seconds spent per keyframe: building factors, the smoother update (optimisation), marginals."""
+
+    factors: float = 0.0
+    optimisation: float = 0.0
+    marginals: float = 0.0
+    residuals: int = 0
+    cpu: float = 0.0  # process CPU seconds of the whole update (robust to other load on the machine)
+    iterations: int = 0  # LM iterations of the smoother update
+
+    @property
+    def total(self) -> float:
+        return self.factors + self.optimisation + self.marginals
+
+
+@dataclass
+class _Keyframe:
+    index: int
+    frame: int
+    timestamp: float
+    observations: FrameObservations
+    init: MotionInit
+    chord: float = 0.0  # distance of the hitch from the previous keyframe (initial value)
+    dt: float = 0.0
+    landmarks: dict = field(default_factory=dict)  # per camera: (usable indices, their landmark ids), computed once
+
+    def usable_landmarks(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
+        """Indices of the camera's observations with a usable landmark id (:func:`match_landmarks`) and the ids."""
+        if camera not in self.landmarks:
+            observations = self.observations.cameras[camera]
+            if observations.landmark_ids is None:
+                self.landmarks[camera] = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+            else:
+                usable = usable_landmarks(observations.landmark_ids)
+                self.landmarks[camera] = (usable, np.asarray(observations.landmark_ids, dtype=np.int64)[usable])
+        return self.landmarks[camera]
+
+
+@dataclass
+class _Pending:
+    """Factors and values of one smoother update."""
+
+    graph: gtsam.NonlinearFactorGraph = field(default_factory=gtsam.NonlinearFactorGraph)
+    values: gtsam.Values = field(default_factory=gtsam.Values)
+    timestamps: dict[int, float] = field(default_factory=dict)
+    residuals: int = 0
+    terms: list = field(default_factory=list)  # small residuals of one keyframe, stacked into one factor
+
+    def flush_terms(self) -> None:
+        """Add the collected terms as one :class:`factors.stacked.StackedFactor` (issue 5 timing)."""
+        if self.terms:
+            self.graph.add(StackedFactor(self.terms))
+            self.terms = []
+
+    def insert(self, key: int, value, timestamp: float) -> None:
+        if isinstance(value, float):
+            self.values.insert(key, value)
+        else:
+            self.values.insert(key, gtsam.Pose3(value))
+        self.timestamps[key] = timestamp
+
+
+def _pose_sigmas(rotation_rad: float, translation_m: float) -> gtsam.noiseModel.Base:
+    return gtsam.noiseModel.Diagonal.Sigmas(_pose_sigma_vector(rotation_rad, translation_m))
+
+
+def _pose_sigma_vector(rotation_rad: float, translation_m: float) -> np.ndarray:
+    """Sigmas of a pose residual in GTSAM tangent order ``[omega, v]``."""
+    return np.array([rotation_rad] * 3 + [translation_m] * 3)
+
+
+_IDENTITY_POSE = gtsam.Pose3()
+
+
+class ArticulatedSmoother:
+    """Fixed-lag smoother of the articulated vehicle (module docstring).
+
+    Call :meth:`add_keyframe` with each keyframe's observations and initial relative motion; it
+    returns the estimates published by that call (the first keyframe is published together with
+    the second, which gives the first hitch angle).
+    """
+
+    def __init__(self, rig: Rig, config: VoConfig) -> None:
+        self.rig = rig
+        self.config = config
+        self.mode = config.mode
+        self.use_trailer = rig.has_trailer and config.mode != "tractor_only"
+        self.joint = self.use_trailer and config.mode in ("full", "no_trailer_constraint")
+        self.trailer_nonholonomic = self.use_trailer and config.mode in ("full", "separate")
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(config.lm_iterations)
+        params.setlambdaInitial(config.smoother.lm_lambda_initial)
+        params.setRelativeErrorTol(config.smoother.lm_relative_error_tol)
+        self._params = params
+        self._smoother = gtsam.BatchFixedLagSmoother(config.smoother.lag_s, params)
+        self._window: dict[int, _Keyframe] = {}
+        self._estimate = gtsam.Values()
+        self._pending_first: _Keyframe | None = None
+        self._count = 0
+        self._last_hitch: float | None = None
+        self._last_sigma: float | None = None
+        self._separate_hitch: dict[int, float] = {}
+        self.timings: list[BackendTiming] = []
+        self._rng = np.random.default_rng(config.ransac.seed)
+        self._last_state: dict[str, str] = {}
+        self._marginals: gtsam.Marginals | None = None
+
+    # ------------------------------------------------------------------ public
+    @property
+    def keyframe_count(self) -> int:
+        return self._count
+
+    def add_keyframe(self, observations: FrameObservations, init: MotionInit) -> list[KeyframeEstimate]:
+        """Add keyframe k with its initial motion from keyframe k-1 and re-optimise the window."""
+        keyframe = _Keyframe(self._count, observations.frame, observations.timestamp, observations, init)
+        self._count += 1
+        if keyframe.index == 0:
+            self._pending_first = keyframe
+            return []
+        timing = BackendTiming()
+        lagged = self.config.output.publish == "lagged"
+        leaving: list[KeyframeEstimate] = []
+        if lagged:
+            # keyframes the coming update will marginalise: publish their fully smoothed estimate now
+            horizon = keyframe.timestamp - self.config.smoother.lag_s
+            leaving = [self._publish(self._window[index], self._sigma_of(index)) for index in sorted(self._window) if self._window[index].timestamp < horizon]
+        started = time.perf_counter()
+        cpu_started = time.process_time()
+        pending = _Pending()
+        published_indices = []
+        try:
+            if self._pending_first is not None:
+                first = self._pending_first
+                self._pending_first = None
+                self._add_first(first, init, pending)
+                pending.flush_terms()
+                published_indices.append(first.index)
+            self._add_next(keyframe, pending)
+            pending.flush_terms()
+            published_indices.append(keyframe.index)
+            timing.factors = time.perf_counter() - started
+            timing.residuals = pending.residuals
+
+            started = time.perf_counter()
+            stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+            for key, stamp in pending.timestamps.items():
+                stamps.insert((key, stamp))
+            try:
+                timing.iterations = int(self._smoother.update(pending.graph, pending.values, stamps).getIterations())
+            except RuntimeError as error:
+                self._recover(keyframe, pending, error)
+        except BaseException:
+            # interrupted (Ctrl-C, e.g. inside an error function): the keyframes of this update have
+            # no estimate; the window keeps only those that do (what a salvage publishes)
+            for index in [index for index in self._window if not self._estimate.exists(X(index))]:
+                del self._window[index]
+            raise
+        self._estimate = self._smoother.calculateEstimate()
+        timing.optimisation = time.perf_counter() - started
+        self._forget_old(keyframe.timestamp)
+        if self.use_trailer and not self.joint:
+            for index in sorted(self._window):  # refresh θ of mode separate from the smoothed trajectories
+                self._separate_hitch_angle(self._window[index])
+
+        started = time.perf_counter()
+        self._marginals = self._compute_marginals(keyframe.index)
+        sigma = self._sigma_of(keyframe.index)
+        timing.marginals = time.perf_counter() - started
+        timing.cpu = time.process_time() - cpu_started
+        self.timings.append(timing)
+        if lagged:
+            return leaving
+        return [self._publish(self._window[index], sigma if index == keyframe.index else None) for index in published_indices if index in self._window]
+
+    def _recover(self, keyframe: _Keyframe, pending: _Pending, error: RuntimeError) -> None:
+        """An ill-conditioned window (e.g. a keyframe whose factors were all rejected): anchor the new
+        keyframe to its initial values with moderate priors and optimise again (logged)."""
+        logger.warning("frame %d: smoother update failed (%s); anchoring the keyframe to its initial motion",
+                       keyframe.frame, str(error).strip().splitlines()[0])
+        k = keyframe.index
+        anchor = gtsam.NonlinearFactorGraph()
+        sigmas = _pose_sigmas(np.radians(0.5), 0.05)
+        keys = [X] + ([Y] if self.use_trailer and not self.joint else [])
+        for key in keys:
+            T_prior = relative_pose(pending.values.atPose3(key(k - 1)).matrix() if pending.values.exists(key(k - 1)) else self._estimate.atPose3(key(k - 1)).matrix(),
+                                    pending.values.atPose3(key(k)).matrix())
+            anchor.add(RelativePoseFactor(key(k - 1), key(k), T_prior, sigmas))
+        if self.joint:
+            anchor.add(gtsam.PriorFactorDouble(A(k), pending.values.atDouble(A(k)), gtsam.noiseModel.Isotropic.Sigma(1, np.radians(2.0))))
+        try:
+            self._smoother.update(anchor, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
+        except RuntimeError:
+            self._reinitialise(keyframe, pending)
+
+    def _reinitialise(self, keyframe: _Keyframe, pending: _Pending) -> None:
+        """Last resort (DESIGN 4: re-initialise instead of crashing): a new smoother whose first
+        keyframe is this one, anchored at its initial values; the old window is dropped."""
+        logger.warning("frame %d: smoother re-initialised at this keyframe (window dropped)", keyframe.frame)
+        config = self.config.smoother
+        k = keyframe.index
+        self._smoother = gtsam.BatchFixedLagSmoother(config.lag_s, self._params)
+        restart = _Pending()
+        T_world_tractor = pending.values.atPose3(X(k)).matrix()
+        restart.insert(X(k), T_world_tractor, keyframe.timestamp)
+        prior = _pose_sigmas(np.radians(config.prior_rotation_sigma_deg), config.prior_translation_sigma_m)
+        restart.graph.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(T_world_tractor), prior))
+        if self.use_trailer:
+            T_world_trailer = pending.values.atPose3(Y(k)).matrix()
+            restart.insert(Y(k), T_world_trailer, keyframe.timestamp)
+            if self.joint:
+                hitch = pending.values.atDouble(A(k))
+                restart.insert(A(k), float(hitch), keyframe.timestamp)
+                restart.graph.add(gtsam.PriorFactorDouble(A(k), float(hitch), gtsam.noiseModel.Isotropic.Sigma(1, np.radians(5.0))))
+                self._add_joint_loop(k, restart)
+                restart.flush_terms()
+            else:
+                restart.graph.add(gtsam.PriorFactorPose3(Y(k), gtsam.Pose3(T_world_trailer), prior))
+        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        for key, stamp in restart.timestamps.items():
+            stamps.insert((key, stamp))
+        self._smoother.update(restart.graph, restart.values, stamps)
+        self._window = {k: keyframe}
+
+    def flush(self) -> list[KeyframeEstimate]:
+        """End of the stream: with ``output.publish: lagged`` the keyframes still in the window."""
+        if self.config.output.publish != "lagged":
+            return []
+        return [self._publish(self._window[index], self._sigma_of(index)) for index in sorted(self._window)]
+
+    def estimate(self, index: int) -> KeyframeEstimate:
+        """Current (smoothed) estimate of a keyframe still in the window."""
+        return self._publish(self._window[index], None)
+
+    def window_indices(self) -> list[int]:
+        return sorted(self._window)
+
+    # ------------------------------------------------------------------ keyframes
+    def _add_first(self, first: _Keyframe, next_init: MotionInit, pending: _Pending) -> None:
+        config = self.config.smoother
+        self._window[first.index] = first
+        T_world_tractor = np.eye(4)
+        pending.insert(X(first.index), T_world_tractor, first.timestamp)
+        prior = _pose_sigmas(np.radians(config.prior_rotation_sigma_deg), config.prior_translation_sigma_m)
+        pending.graph.add(gtsam.PriorFactorPose3(X(first.index), gtsam.Pose3(T_world_tractor), prior))
+        if not self.use_trailer:
+            return
+        hitch = next_init.hitch_prev if next_init.hitch_prev is not None else 0.0
+        T_world_trailer = T_world_tractor @ make_pose(rot_z(hitch), np.zeros(3))
+        pending.insert(Y(first.index), T_world_trailer, first.timestamp)
+        if self.joint:
+            pending.insert(A(first.index), float(hitch), first.timestamp)
+            pending.graph.add(gtsam.PriorFactorDouble(A(first.index), float(hitch), gtsam.noiseModel.Isotropic.Sigma(1, np.radians(config.hitch_prior_sigma_deg))))
+            self._add_joint_loop(first.index, pending)
+        else:
+            pending.graph.add(gtsam.PriorFactorPose3(Y(first.index), gtsam.Pose3(T_world_trailer), prior))
+            self._separate_hitch[first.index] = hitch
+
+    def _pose(self, key: int, pending: _Pending) -> np.ndarray:
+        if pending.values.exists(key):
+            return pending.values.atPose3(key).matrix()
+        return self._estimate.atPose3(key).matrix()
+
+    def _double(self, key: int, pending: _Pending) -> float:
+        if pending.values.exists(key):
+            return pending.values.atDouble(key)
+        return self._estimate.atDouble(key)
+
+    def _add_next(self, keyframe: _Keyframe, pending: _Pending) -> None:
+        k, previous = keyframe.index, keyframe.index - 1
+        init = keyframe.init
+        config = self.config.smoother
+        previous_keyframe = self._window[previous]
+        keyframe.dt = keyframe.timestamp - previous_keyframe.timestamp
+        self._window[k] = keyframe
+        T_world_tractor = self._pose(X(previous), pending) @ init.T_tractor
+        keyframe.chord = float(np.linalg.norm(init.T_tractor[:3, 3]))
+        pending.insert(X(k), T_world_tractor, keyframe.timestamp)
+        self._log_state("tractor", init.tractor_status, keyframe)
+        if self.use_trailer:
+            self._log_state("trailer", init.trailer_status, keyframe)
+            if self.joint:
+                hitch = self._initial_hitch(keyframe, pending)
+                pending.insert(A(k), hitch, keyframe.timestamp)
+                pending.insert(Y(k), T_world_tractor @ make_pose(rot_z(hitch), np.zeros(3)), keyframe.timestamp)
+                self._add_joint_loop(k, pending)
+                sigma = self._hitch_step_sigma(keyframe)
+                pending.graph.add(gtsam.BetweenFactorDouble(A(previous), A(k), 0.0, gtsam.noiseModel.Isotropic.Sigma(1, sigma)))
+            else:
+                T_trailer = init.T_trailer if init.T_trailer is not None else self._predicted_motion("trailer", keyframe, pending)
+                pending.insert(Y(k), self._pose(Y(previous), pending) @ T_trailer, keyframe.timestamp)
+
+        bodies = ["tractor"] + (["trailer"] if self.use_trailer else [])
+        standstill = init.tractor_status is MotionStatus.STANDSTILL
+        epipolar_blocks: list[tuple[EpipolarBlock, float]] = []
+        for body in bodies:
+            key = X if body == "tractor" else Y
+            # in the joint modes the trailer pose follows from X and A (joint loop): no own motion priors
+            own_motion = body == "tractor" or not self.joint
+            status = init.tractor_status if body == "tractor" else init.trailer_status
+            pair = (key(previous), key(k))
+            if own_motion:
+                planar_sigmas = np.array([np.radians(config.planar_rotation_sigma_deg)] * 2 + [config.planar_height_sigma_m])
+                pending.terms.append(Term(pair, (POSE, POSE), planar_motion_error, planar_sigmas))
+            if standstill:
+                if own_motion:
+                    tight = _pose_sigma_vector(np.radians(config.standstill_rotation_sigma_deg), config.standstill_translation_sigma_m)
+                    pending.terms.append(Term(pair, (POSE, POSE), partial(relative_pose_error, _IDENTITY_POSE), tight))
+                continue
+            if body == "tractor" or self.trailer_nonholonomic:
+                pending.terms.append(Term(pair, (POSE, POSE), partial(nonholonomic_error, axle_x=self.rig.axle_x(body)), np.array([config.nonholonomic_sigma_m]), config.huber_k))
+            linked = self._add_epipolar_factors(body, keyframe, pending, epipolar_blocks)
+            if own_motion:
+                # weak prior on the initial motion when it was not estimated; a 3x weaker regulariser
+                # otherwise (keeps the system well-posed when the scale is unobservable, DESIGN 2.3)
+                inflation = 1.0 if (status is not MotionStatus.OK or not linked) else 3.0
+                weak = _pose_sigma_vector(inflation * np.radians(config.weak_motion_rotation_sigma_deg), inflation * config.weak_motion_translation_sigma_m)
+                T_prior = gtsam.Pose3(relative_pose(self._pose(key(previous), pending), self._pose(key(k), pending)))
+                pending.terms.append(Term(pair, (POSE, POSE), partial(relative_pose_error, T_prior), weak))
+                self._add_smooth_speed(key, keyframe, pending)
+            axle_x = self.rig.axle_x("tractor")
+            if body == "tractor" and self.config.scale.wheel_speed and init.wheel_chord is not None:
+                pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(init.wheel_chord)),
+                                          np.array([self.config.scale.wheel_speed_sigma_m])))
+            if body == "tractor" and init.scale_chord is not None:
+                chord, chord_sigma = init.scale_chord
+                pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(chord)), np.array([float(chord_sigma)]), config.huber_k))
+        self._add_stacked_epipolar(epipolar_blocks, pending)
+
+    def _initial_hitch(self, keyframe: _Keyframe, pending: _Pending) -> float:
+        """θ_k: the 1-point RANSAC estimate if any, else held (standstill) or predicted by the
+        trailer non-holonomic closed form ``ψ = 2 atan2(w_y, w_x + 2 s_B)`` (DESIGN 2)."""
+        init = keyframe.init
+        previous = self._double(A(keyframe.index - 1), pending)
+        if init.hitch is not None and init.trailer_status is MotionStatus.OK:
+            return float(init.hitch)
+        if init.tractor_status is MotionStatus.STANDSTILL:
+            return previous
+        s_b = -self.rig.axle_x("trailer")
+        w = rot_z(-previous) @ init.T_tractor[:3, 3]
+        psi = 2.0 * np.arctan2(w[1], w[0] + 2.0 * s_b)
+        return float(wrap_angle(previous + psi - yaw_of(init.T_tractor)))
+
+    def _hitch_step_sigma(self, keyframe: _Keyframe) -> float:
+        """Random-walk sigma of θ between consecutive keyframes: grows with distance and time."""
+        config = self.config.smoother
+        variance = (np.radians(config.hitch_random_walk_deg_per_m)) ** 2 * max(keyframe.chord, 1e-3)
+        variance += (np.radians(config.hitch_hold_sigma_growth_deg_per_s)) ** 2 * max(keyframe.dt, 1e-3)
+        return float(np.sqrt(variance))
+
+    def _predicted_motion(self, body: str, keyframe: _Keyframe, pending: _Pending) -> np.ndarray:
+        """Constant-velocity prediction of a body's motion (used when it could not be estimated)."""
+        key = X if body == "tractor" else Y
+        k = keyframe.index
+        if keyframe.init.tractor_status is MotionStatus.STANDSTILL or k < 2 or (k - 2) not in self._window:
+            return np.eye(4)
+        last = relative_pose(self._pose(key(k - 2), pending), self._pose(key(k - 1), pending))
+        previous_dt = self._window[k - 1].dt
+        if previous_dt <= 0:
+            return np.eye(4)
+        ratio = keyframe.dt / previous_dt
+        yaw = yaw_of(last) * ratio
+        return make_pose(rot_z(yaw), last[:3, 3] * ratio)
+
+    # ------------------------------------------------------------------ factors
+    def _add_joint_loop(self, k: int, pending: _Pending) -> None:
+        """Joint loop ``X(k), Y(k), A(k)`` (paper eqs. (3)-(5)) as a term of the keyframe's stacked factor."""
+        config = self.config.smoother
+        sigmas = _pose_sigma_vector(np.radians(config.joint_loop_rotation_sigma_deg), config.joint_loop_translation_sigma_m)
+        pending.terms.append(Term((X(k), Y(k), A(k)), (POSE, POSE, SCALAR), joint_loop_error, sigmas))
+
+    def _add_smooth_speed(self, key, keyframe: _Keyframe, pending: _Pending) -> None:
+        sigma = self.config.scale.smooth_speed_sigma_mps2
+        k = keyframe.index
+        if sigma is None or k < 2 or (k - 2) not in self._window:
+            return
+        previous = self._window[k - 1]
+        if previous.init.tractor_status is MotionStatus.STANDSTILL or previous.dt <= 0 or keyframe.dt <= 0:
+            return
+        noise = gtsam.noiseModel.Isotropic.Sigma(1, sigma * 0.5 * (previous.dt + keyframe.dt))
+        pending.graph.add(SmoothSpeedFactor(key(k - 2), key(k - 1), key(k), previous.dt, keyframe.dt, noise))
+
+    def _gec_sigma(self, camera: Camera) -> float:
+        """Sampson residual sigma of a camera: pixel sigma / focal length (DESIGN section 3)."""
+        return self.config.smoother.pixel_sigma / (0.5 * (camera.fx + camera.fy))
+
+    def _add_stacked_epipolar(self, blocks: list[tuple[EpipolarBlock, float]], pending: _Pending) -> None:
+        """One :class:`factors.StackedEpipolarFactor` with all GEC blocks of the new keyframe (both
+        bodies, every keyframe pair and camera pair), Huber per residual, 6 rows per keyframe pair.
+        It is marginalised when its oldest key leaves the window: with pairs up to 3 keyframes
+        apart, as before when the rows of (k-3, k) had factors of their own."""
+        if not blocks:
+            return
+        from factors import StackedEpipolarFactor
+
+        factor = StackedEpipolarFactor([block for block, _ in blocks], [sigma for _, sigma in blocks], self.config.smoother.huber_k)
+        pending.graph.add(factor)
+        pending.residuals += len(factor)
+
+    def _verified(self, keyframe: _Keyframe, camera: str, observations: CameraObservations, index: np.ndarray) -> np.ndarray:
+        """Mask of the observations ``index`` that the RANSAC of their keyframe pair kept (all True
+        when there is no RANSAC verdict: the first keyframe, or no estimate)."""
+        if keyframe.init.tractor_status is MotionStatus.FIRST:
+            return np.ones(index.shape[0], dtype=bool)
+        verified = keyframe.init.inlier_tracks.get(camera)
+        if verified is None:
+            return np.ones(index.shape[0], dtype=bool)
+        return np.isin(observations.track_ids[index], verified)
+
+    def _add_epipolar_factors(self, body: str, keyframe: _Keyframe, pending: _Pending, blocks: list[tuple[EpipolarBlock, float]]) -> bool:
+        """GEC blocks between keyframe k and the earlier keyframes of the window (module docstring),
+        appended to ``blocks``. Returns True when at least one block links k to k-1."""
+        from factors import body_correspondences
+
+        config = self.config
+        key = X if body == "tractor" else Y
+        k = keyframe.index
+        lag_start = keyframe.timestamp - config.smoother.lag_s
+        linked_previous = False
+        T_world_k = self._pose(key(k), pending)
+        cameras = self.rig.cameras_on(body)
+        cross_gap = 0
+        if config.scale.cross_camera and len(cameras) > 1:
+            # long cross-camera gaps only with the trailer coupling (joint modes): on a single body
+            # (tractor_only, separate) gaps beyond max_pair_gap made the scale collapse after a
+            # straight start on the demo route (not understood yet; issue 5 report)
+            cross_gap = config.scale.cross_camera_max_gap if self.joint else min(config.scale.cross_camera_max_gap, config.smoother.max_pair_gap)
+        for j in range(k - 1, max(k - 1 - max(config.smoother.max_pair_gap, cross_gap), -1), -1):
+            earlier = self._window.get(j)
+            if earlier is None or earlier.timestamp < lag_start:
+                break
+            T_j_k = relative_pose(self._pose(key(j), pending), T_world_k)
+            if np.linalg.norm(T_j_k[:3, 3]) < config.keyframes.standstill_distance_m:
+                continue
+            for camera_j in cameras:
+                first = earlier.observations.cameras.get(camera_j.name)
+                if first is None or len(first) == 0:
+                    continue
+                for camera_k in cameras:
+                    second = keyframe.observations.cameras.get(camera_k.name)
+                    if second is None or len(second) == 0:
+                        continue
+                    if camera_k is camera_j:
+                        if k - j > config.smoother.max_pair_gap:
+                            continue
+                        index_j, index_k = match_tracks(first, second)
+                        gate_px = config.smoother.gate_px
+                    else:
+                        if k - j > cross_gap:
+                            continue
+                        (usable_j, ids_j), (usable_k, ids_k) = earlier.usable_landmarks(camera_j.name), keyframe.usable_landmarks(camera_k.name)
+                        _, index_j, index_k = np.intersect1d(ids_j, ids_k, assume_unique=True, return_indices=True)
+                        index_j, index_k = usable_j[index_j], usable_k[index_k]
+                        gate_px = config.scale.cross_camera_gate_px
+                    if index_j.size < config.keyframes.min_tracks:
+                        continue
+                    # per-observation outlier rejection: an observation is used only if the RANSAC of
+                    # its keyframe's pair (k-1, k) kept it; without a RANSAC verdict the pose gate decides
+                    valid = self._verified(keyframe, camera_k.name, second, index_k) & self._verified(earlier, camera_j.name, first, index_j)
+                    index_j, index_k = index_j[valid], index_k[valid]
+                    if index_j.size < config.keyframes.min_tracks:
+                        continue
+                    bearings_j, bearings_k = first.bearings[index_j], second.bearings[index_k]
+                    keep = self._gate(camera_j, camera_k, bearings_j, bearings_k, T_j_k, gate_px)
+                    if keep.sum() < config.keyframes.min_tracks:
+                        continue
+                    bearings_j, bearings_k = bearings_j[keep], bearings_k[keep]
+                    cap = config.smoother.max_window_tracks_per_camera
+                    if bearings_j.shape[0] > cap:
+                        chosen = np.sort(self._rng.choice(bearings_j.shape[0], cap, replace=False))
+                        bearings_j, bearings_k = bearings_j[chosen], bearings_k[chosen]
+                    correspondences = body_correspondences(camera_j.T_body_camera, bearings_j, bearings_k, camera_k.T_body_camera)
+                    sigma = 0.5 * (self._gec_sigma(camera_j) + self._gec_sigma(camera_k))
+                    blocks.append((EpipolarBlock(key(j), key(k), correspondences), sigma))
+                    linked_previous |= j == k - 1
+        return linked_previous
+
+    def _gate(self, camera_i: Camera, camera_j: Camera, bearings_i: np.ndarray, bearings_j: np.ndarray, T_i_j: np.ndarray, gate_px: float) -> np.ndarray:
+        """Correspondences whose Sampson residual under the initial motion is below ``gate_px``."""
+        residual = gec_sampson(bearings_i @ camera_i.R_body_camera.T, bearings_j @ camera_j.R_body_camera.T, T_i_j[:3, :3], T_i_j[:3, 3], camera_i.center, camera_j.center)
+        threshold = gate_px / (0.25 * (camera_i.fx + camera_i.fy + camera_j.fx + camera_j.fy))
+        return np.abs(residual) < threshold
+
+    # ------------------------------------------------------------------ results
+    def _forget_old(self, newest: float) -> None:
+        """Drop window bookkeeping of keyframes the smoother has marginalised."""
+        present = {key for key in self._smoother.timestamps().keys()}
+        for index in list(self._window):
+            if X(index) not in present:
+                del self._window[index]
+
+    def _compute_marginals(self, k: int) -> gtsam.Marginals | None:
+        """``gtsam.Marginals`` of the current window (DESIGN section 3), None if disabled or singular."""
+        if not self.joint or not self.config.smoother.marginals:
+            return None
+        try:
+            return gtsam.Marginals(self._smoother.getFactors(), self._estimate)
+        except RuntimeError as error:
+            logger.warning("keyframe %d: marginal covariance not available (%s)", k, str(error).splitlines()[0])
+            return None
+
+    def _sigma_of(self, index: int) -> float | None:
+        """1-sigma of θ at keyframe ``index`` from the last marginals."""
+        if self._marginals is None:
+            return None
+        try:
+            return float(np.sqrt(self._marginals.marginalCovariance(A(index))[0, 0]))
+        except (RuntimeError, IndexError):  # IndexError: a key the marginals' Bayes tree does not have
+            return None
+
+    def _separate_hitch_angle(self, keyframe: _Keyframe) -> float:
+        """θ from the two separately estimated trajectories (module docstring)."""
+        k = keyframe.index
+        if k in self._separate_hitch and k == 0:
+            return self._separate_hitch[k]
+        previous = self._separate_hitch.get(k - 1, 0.0)
+        if (k - 1) not in self._window:
+            self._separate_hitch.setdefault(k, previous)
+            return self._separate_hitch[k]
+        T_tractor = relative_pose(self._estimate.atPose3(X(k - 1)).matrix(), self._estimate.atPose3(X(k)).matrix())
+        T_trailer = relative_pose(self._estimate.atPose3(Y(k - 1)).matrix(), self._estimate.atPose3(Y(k)).matrix())
+        if keyframe.init.tractor_status is MotionStatus.STANDSTILL or np.linalg.norm(T_tractor[:2, 3]) < self.config.keyframes.standstill_distance_m:
+            hitch = previous
+        else:
+            hitch_previous = float(wrap_angle(np.arctan2(T_tractor[1, 3], T_tractor[0, 3]) - np.arctan2(T_trailer[1, 3], T_trailer[0, 3])))
+            if abs(hitch_previous) > 0.5 * np.pi:
+                # beyond jack-knifing: the trailer's own translation came out reversed (its sign is
+                # weakly determined by its cameras alone); the hitch moved the other way
+                hitch_previous = float(wrap_angle(hitch_previous + np.pi))
+            hitch = float(wrap_angle(hitch_previous + yaw_of(T_trailer) - yaw_of(T_tractor)))
+        self._separate_hitch[k] = hitch
+        for old in [index for index in self._separate_hitch if index < min(self._window, default=k) - 2]:
+            del self._separate_hitch[old]
+        return hitch
+
+    def _publish(self, keyframe: _Keyframe, sigma: float | None) -> KeyframeEstimate:
+        k = keyframe.index
+        T_world_tractor = self._estimate.atPose3(X(k)).matrix()
+        T_world_trailer = hitch = None
+        if self.use_trailer:
+            T_world_trailer = self._estimate.atPose3(Y(k)).matrix()
+            hitch = self._estimate.atDouble(A(k)) if self.joint else self._separate_hitch.get(k)
+        return KeyframeEstimate(
+            index=k, frame=keyframe.frame, timestamp=keyframe.timestamp,
+            T_world_tractor=T_world_tractor, T_world_trailer=T_world_trailer,
+            hitch_angle=None if hitch is None else float(hitch), hitch_sigma=sigma,
+            tractor_status=keyframe.init.tractor_status.value, trailer_status=keyframe.init.trailer_status.value,
+        )
+
+    def _log_state(self, body: str, status: MotionStatus, keyframe: _Keyframe) -> None:
+        """Log state changes (standstill, too few tracks, unobservable scale) once, not per keyframe."""
+        previous = self._last_state.get(body)
+        if previous == status.value:
+            return
+        self._last_state[body] = status.value
+        if status is MotionStatus.OK:
+            if previous is not None:
+                logger.info("frame %d: %s motion estimated again (was %s)", keyframe.frame, body, previous)
+            return
+        messages = {
+            MotionStatus.STANDSTILL: "standstill: motion held at zero, hitch angle held with growing sigma",
+            MotionStatus.TOO_FEW_TRACKS: "too few tracks: motion predicted (constant velocity), weak prior",
+            MotionStatus.SCALE_UNOBSERVABLE: "scale unobservable (straight driving): chord from the smooth-speed prior",
+        }
+        if body == "trailer" and status is not MotionStatus.STANDSTILL:
+            message = "no trailer estimate (" + status.value + "): hitch angle predicted by the trailer model, sigma grows"
+        elif status is MotionStatus.SCALE_UNOBSERVABLE and body == "tractor" and keyframe.init.scale_chord is not None:
+            # not a degraded state: the 2-point chord is unobservable, a measured chord replaces it
+            logger.info("frame %d: tractor straight driving: chord from the measured metric chord (ground plane / stereo)", keyframe.frame)
+            return
+        else:
+            message = messages.get(status, status.value)
+        logger.warning("frame %d: %s %s", keyframe.frame, body, message)

@@ -1,0 +1,448 @@
+"""Image frontend: per-camera feature tracking to bearings (DESIGN section 4).
+
+Per camera, :class:`CameraTracker` runs, for every new image:
+
+1. validation of the image (dtype, shape; :class:`~ampc_vo.errors.DatasetError` on bad input) and a
+   blank-frame test (an all-black or flat image gives empty observations and a re-initialisation);
+2. KLT tracking (``cv2.calcOpticalFlowPyrLK``, image pyramids) of the previous features with a
+   forward-backward check: a track survives if tracking it back lands within ``fb_threshold_px``
+   of where it started (fisheye: it must also stay inside the valid image circle);
+3. a sudden-jump test: if most tracks fail at once the camera re-initialises with new ids;
+4. per-camera outlier rejection on **bearings** (so it works for pinhole and fisheye alike): RANSAC
+   over essential matrices from 8 bearing pairs, scored with the Sampson residual on the sphere
+   (equal to ``ampc_vo.epipolar.gec_sampson`` with the camera centre at the origin, i.e. paper
+   eq. (1) for a single central camera);
+5. grid-based replenishment: GFTT corners (``cv2.goodFeaturesToTrack`` on a 2x downscaled image,
+   with a mask around existing features, only over the cells that need features) fill the grid
+   cells that hold fewer than their share of features; new features get new ids, unique per camera
+   and never reused; crowded cells are thinned (oldest tracks kept) so features stay spread;
+6. un-projection of the pixels to unit bearings with the rig's ``Camera.unproject``.
+
+:class:`~ampc_vo.frontend.multi_camera.MultiCameraFrontend` runs one tracker per camera;
+:mod:`ampc_vo.frontend.stereo` finds cross-camera correspondences of an overlapping pair.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ampc_vo.config import StereoConfig, TrackerConfig
+from ampc_vo.errors import DatasetError
+from ampc_vo.observations import CameraObservations
+from ampc_vo.rig import Camera
+
+logger = logging.getLogger(__name__)
+
+_MIN_RANSAC_SAMPLE = 8
+
+
+@dataclass
+class TrackingReport:
+    """What one :meth:`CameraTracker.track` call did (for logs, benchmarks and the Rerun viewer)."""
+
+    tracked: int = 0                 # tracks carried over from the previous frame
+    lost: int = 0                    # tracks failing KLT / forward-backward / border tests
+    rejected: int = 0                # tracks removed by the epipolar RANSAC
+    detected: int = 0                # new features
+    reinitialised: str = ""          # reason if the camera re-initialised this frame ("blank", "jump", ...)
+    rejected_pixels: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    timings_ms: dict[str, float] = field(default_factory=dict)  # detect, track, reject, unproject
+
+
+# ---------------------------------------------------------------------- image checks
+def as_gray_image(image: object, camera: Camera | None = None, where: str = "image") -> np.ndarray:
+    """A contiguous uint8 (H, W) view of ``image`` or :class:`DatasetError` with a clear message.
+
+    Accepts uint8 grey (H, W), (H, W, 1), BGR (H, W, 3) or BGRA (H, W, 4); uint16 is scaled to 8 bits.
+    If ``camera`` is given the size must match its calibration.
+    """
+    if not isinstance(image, np.ndarray):
+        raise DatasetError(f"{where}: expected a numpy image array, got {type(image).__name__}")
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (3, 4)):
+        raise DatasetError(f"{where}: expected an (H, W) grey or (H, W, 3|4) colour image, got shape {image.shape}")
+    if image.shape[0] < 16 or image.shape[1] < 16:
+        raise DatasetError(f"{where}: image of shape {image.shape} is too small to track features")
+    if image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        raise DatasetError(f"{where}: expected a uint8 (or uint16) image, got dtype {image.dtype}")
+    if camera is not None and (image.shape[1], image.shape[0]) != (camera.width, camera.height):
+        raise DatasetError(
+            f"{where}: image is {image.shape[1]}x{image.shape[0]} but camera {camera.name!r} is calibrated "
+            f"for {camera.width}x{camera.height}"
+        )
+    if image.ndim == 3:
+        code = cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        image = cv2.cvtColor(image, code)
+    return np.ascontiguousarray(image)
+
+
+def valid_pixel_mask(camera: Camera, margin_px: float = 4.0, step: int = 4) -> np.ndarray | None:
+    """uint8 mask (255 = usable) of the pixels whose rays the camera model maps back to themselves
+    (fisheye: inside the image circle, below the model's maximum incidence), eroded by ``margin_px``.
+    ``None`` for an undistorted pinhole camera (every pixel is valid). Sampled every ``step`` px."""
+    if camera.model == "pinhole" and not np.any(camera.distortion):
+        return None
+    columns, rows = np.arange(0, camera.width, step, dtype=float), np.arange(0, camera.height, step, dtype=float)
+    grid = np.stack(np.meshgrid(columns, rows), axis=-1).reshape(-1, 2)
+    with np.errstate(all="ignore"):
+        bearings = camera.unproject(grid)
+        finite = np.all(np.isfinite(bearings), axis=1)
+        bearings[~finite] = [0.0, 0.0, 1.0]
+        reprojected, valid = camera.project(bearings)
+        valid &= finite & (np.linalg.norm(reprojected - grid, axis=1) < 0.5)
+    coarse = (valid.reshape(len(rows), len(columns)) * 255).astype(np.uint8)
+    mask = cv2.resize(coarse, (camera.width, camera.height), interpolation=cv2.INTER_NEAREST)
+    radius = int(np.ceil(margin_px + step))
+    return cv2.erode(mask, np.ones((2 * radius + 1, 2 * radius + 1), np.uint8))
+
+
+def is_blank(gray: np.ndarray, min_contrast: float) -> bool:
+    """True for an all-black, saturated or flat image (no trackable texture)."""
+    small = gray[::4, ::4]
+    return float(small.std()) < min_contrast
+
+
+# ---------------------------------------------------------------------- KLT and grid helpers
+def track_forward_backward(
+    previous_image: np.ndarray,
+    current_image: np.ndarray,
+    previous_pixels: np.ndarray,
+    config: "TrackerConfig | StereoConfig",
+    image_size: tuple[int, int],
+) -> tuple[np.ndarray, np.ndarray]:
+    """KLT from the previous to the current image and back; returns ``(pixels (K, 2), good (K,))``.
+
+    ``good`` is false for tracks that KLT lost in either direction, whose forward-backward error
+    exceeds ``fb_threshold_px``, or that end within ``border_px`` of the border of the current
+    image (``image_size``). Also the stereo matcher's KLT (``match_stereo``: from the first
+    camera's image to the second's).
+    """
+    if len(previous_pixels) == 0:
+        return np.zeros((0, 2)), np.zeros(0, bool)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, config.lk_iterations, config.lk_epsilon)
+    window = (config.lk_window, config.lk_window)
+    start = np.ascontiguousarray(previous_pixels, dtype=np.float32).reshape(-1, 1, 2)
+    forward, status_forward, _ = cv2.calcOpticalFlowPyrLK(previous_image, current_image, start, None, winSize=window, maxLevel=config.lk_levels, criteria=criteria)
+    # The backward pass starts at the original pixel, so a shallow pyramid suffices (about half the cost).
+    backward, status_backward, _ = cv2.calcOpticalFlowPyrLK(
+        current_image, previous_image, forward, start.copy(), winSize=window, maxLevel=min(config.fb_levels, config.lk_levels),
+        criteria=criteria, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+    )
+    forward = forward.reshape(-1, 2).astype(float)
+    fb_error = np.linalg.norm(backward.reshape(-1, 2) - start.reshape(-1, 2), axis=1)
+    width, height = image_size
+    border = config.border_px
+    inside = (
+        (forward[:, 0] >= border) & (forward[:, 0] <= width - 1 - border)
+        & (forward[:, 1] >= border) & (forward[:, 1] <= height - 1 - border)
+    )
+    good = (status_forward.ravel() == 1) & (status_backward.ravel() == 1) & (fb_error < config.fb_threshold_px) & inside
+    good &= np.all(np.isfinite(forward), axis=1)
+    return forward, good
+
+
+def grid_cells(pixels: np.ndarray, image_size: tuple[int, int], rows: int, cols: int) -> np.ndarray:
+    """Flat grid-cell index (K,) of each pixel for a ``rows`` x ``cols`` grid over the image."""
+    width, height = image_size
+    column = np.clip((pixels[:, 0] * cols / width).astype(int), 0, cols - 1)
+    row = np.clip((pixels[:, 1] * rows / height).astype(int), 0, rows - 1)
+    return row * cols + column
+
+
+def select_per_cell(candidate_cells: np.ndarray, quota: np.ndarray) -> np.ndarray:
+    """Indices of candidates to keep: the first ``quota[cell]`` candidates of each cell, in input order
+    (GFTT returns corners by decreasing quality, so these are the best of each cell)."""
+    if len(candidate_cells) == 0:
+        return np.zeros(0, int)
+    order = np.argsort(candidate_cells, kind="stable")
+    sorted_cells = candidate_cells[order]
+    first_of_cell = np.searchsorted(sorted_cells, sorted_cells, side="left")
+    rank = np.arange(len(sorted_cells)) - first_of_cell
+    keep = rank < quota[sorted_cells]
+    return np.sort(order[keep])
+
+
+def detection_mask(pixels: np.ndarray, image_size: tuple[int, int], radius: float) -> np.ndarray:
+    """uint8 mask (255 = free) blocking a neighbourhood of about ``radius`` around each pixel.
+
+    Vectorised: pixels mark cells of side ``radius / 2`` on a coarse grid, dilated by one cell and
+    scaled up to the image (blocked zone between radius/2 and 1.5 radius from a feature).
+    """
+    width, height = image_size
+    cell = max(radius / 2.0, 1.0)
+    coarse_w, coarse_h = int(np.ceil(width / cell)), int(np.ceil(height / cell))
+    blocked = np.zeros((coarse_h, coarse_w), np.uint8)
+    if len(pixels):
+        ix = np.clip((pixels[:, 0] / cell).astype(int), 0, coarse_w - 1)
+        iy = np.clip((pixels[:, 1] / cell).astype(int), 0, coarse_h - 1)
+        blocked[iy, ix] = 1
+        blocked = cv2.dilate(blocked, np.ones((3, 3), np.uint8))
+    free = ((1 - blocked) * 255).astype(np.uint8)
+    return cv2.resize(free, (width, height), interpolation=cv2.INTER_NEAREST)
+
+
+# ---------------------------------------------------------------------- RANSAC on bearings
+def essential_from_bearings(bearings_i: np.ndarray, bearings_j: np.ndarray) -> np.ndarray:
+    """Linear (8-point) essential matrices ``E`` with ``f_i^T E f_j = 0``, projected onto the
+    essential manifold (singular values 1, 1, 0).
+
+    ``bearings_i``, ``bearings_j``: (..., M, 3) with M >= 8 unit bearings; returns (..., 3, 3).
+    The null vector is the eigenvector of ``A^T A`` (9 x 9) with the smallest eigenvalue.
+    """
+    design = (bearings_i[..., :, :, None] * bearings_j[..., :, None, :]).reshape(*bearings_i.shape[:-1], 9)
+    _, vectors = np.linalg.eigh(np.swapaxes(design, -1, -2) @ design)
+    essential = vectors[..., :, 0].reshape(*bearings_i.shape[:-2], 3, 3)
+    u, _, vt = np.linalg.svd(essential)
+    return u @ (np.array([1.0, 1.0, 0.0])[:, None] * vt)
+
+
+def motion_from_essential(essential: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One ``(R, t)`` per essential matrix with ``E ~ [t]x R`` (Hartley-Zisserman result 9.19).
+
+    Only one of the four decompositions is returned: the Sampson GEC residual (``gec_sampson``
+    with the camera at the origin) has the same magnitude for all four.
+    """
+    u, _, vt = np.linalg.svd(essential)
+    u = u * np.sign(np.linalg.det(u))[..., None, None]
+    vt = vt * np.sign(np.linalg.det(vt))[..., None, None]
+    w = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    return u @ w @ vt, u[..., :, 2]
+
+
+def essential_sampson(essential: np.ndarray, bearings_i: np.ndarray, bearings_j: np.ndarray) -> np.ndarray:
+    """Sampson residual on the sphere of ``f_i^T E f_j`` for (..., 3, 3) hypotheses and (N, 3) bearings.
+
+    ``r / sqrt(|P_fi E f_j|^2 + |P_fj E^T f_i|^2)``: for an essential matrix ``E = -[t]x R`` this is
+    exactly ``gec_sampson(f_i, f_j, R, t, 0)`` (paper eq. (1) for one central camera; tested), written
+    with matrix products because it scores every RANSAC hypothesis on every track each frame.
+    """
+    e_fj = bearings_j @ np.swapaxes(essential, -1, -2)   # (..., N, 3) = E f_j
+    et_fi = bearings_i @ essential                       # (..., N, 3) = E^T f_i
+    residual = np.sum(bearings_i * e_fj, axis=-1)
+    squared = np.sum(e_fj * e_fj, axis=-1) + np.sum(et_fi * et_fi, axis=-1) - 2.0 * residual * residual
+    return residual / np.sqrt(np.maximum(squared, 1e-24))
+
+
+def epipolar_inliers(
+    bearings_i: np.ndarray,
+    bearings_j: np.ndarray,
+    threshold_rad: float,
+    iterations: int,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Boolean inlier mask (N,) of a RANSAC essential-matrix fit on unit bearings.
+
+    Hypotheses come from random 8-point samples (all evaluated at once, vectorised); the score is
+    the Sampson-normalised residual of paper eq. (1) with the camera at the origin
+    (:func:`essential_sampson`, approximately radians). The best hypothesis is refitted on its
+    inliers. Works for any central camera model because it never leaves the unit sphere.
+    """
+    count = len(bearings_i)
+    if count < _MIN_RANSAC_SAMPLE + 1:
+        return np.ones(count, bool)
+    samples = np.argsort(rng.random((iterations, count)), axis=1)[:, :_MIN_RANSAC_SAMPLE]
+    essentials = essential_from_bearings(bearings_i[samples], bearings_j[samples])
+    inliers = np.abs(essential_sampson(essentials, bearings_i, bearings_j)) < threshold_rad  # (H, N)
+    mask = inliers[int(np.argmax(inliers.sum(axis=1)))]
+    if mask.sum() >= _MIN_RANSAC_SAMPLE:
+        refined = essential_from_bearings(bearings_i[mask], bearings_j[mask])
+        refined_mask = np.abs(essential_sampson(refined, bearings_i, bearings_j)) < threshold_rad
+        if refined_mask.sum() >= mask.sum():
+            mask = refined_mask
+    return mask
+
+
+# ---------------------------------------------------------------------- one camera
+class CameraTracker:
+    """KLT tracker of one camera: holds its last image, features and id counter (no globals)."""
+
+    def __init__(self, camera: Camera, config: TrackerConfig | None = None) -> None:
+        self.camera = camera
+        self.config = config or TrackerConfig()
+        self._rng = np.random.default_rng(self.config.seed)
+        self._next_id = 0
+        self._pixels = np.zeros((0, 2))
+        self._bearings = np.zeros((0, 3))
+        self._ids = np.zeros(0, np.int64)
+        self._empty_cells_after_detection = 0
+        self._valid_mask = valid_pixel_mask(camera, self.config.border_px)
+        self.last_report = TrackingReport()
+        self.previous_image: np.ndarray | None = None  # grey image of the last tracked frame (stereo, viz)
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        return (self.camera.width, self.camera.height)
+
+    @property
+    def next_id(self) -> int:
+        """The id the next new feature will get (ids are never reused)."""
+        return self._next_id
+
+    def reset(self, reason: str = "") -> None:
+        """Forget all tracks (ids already issued stay retired)."""
+        if reason:
+            logger.warning("camera %s: re-initialising tracking (%s)", self.camera.name, reason)
+        self.previous_image = None
+        self._pixels = np.zeros((0, 2))
+        self._bearings = np.zeros((0, 3))
+        self._ids = np.zeros(0, np.int64)
+
+    def _new_ids(self, count: int) -> np.ndarray:
+        ids = np.arange(self._next_id, self._next_id + count, dtype=np.int64)
+        self._next_id += count
+        return ids
+
+    def track(self, image: np.ndarray | None) -> CameraObservations:
+        """Track features into ``image`` and return this frame's observations.
+
+        ``None`` (a missing image) or a blank image gives empty observations, a warning and a
+        re-initialisation at the next good image. Raises :class:`DatasetError` only for images of
+        the wrong type or size.
+        """
+        config = self.config
+        report = TrackingReport(timings_ms={"detect": 0.0, "track": 0.0, "reject": 0.0, "unproject": 0.0})
+        self.last_report = report
+        if image is None:
+            report.reinitialised = "missing image"
+            self.reset(report.reinitialised)
+            return CameraObservations.empty(self.camera.name)
+        gray = as_gray_image(image, self.camera, where=f"camera {self.camera.name}")
+        if is_blank(gray, config.min_contrast):
+            report.reinitialised = "blank image"
+            self.reset(f"blank image (contrast below {config.min_contrast})")
+            self.previous_image = gray
+            return CameraObservations.empty(self.camera.name)
+
+        clock = time.perf_counter()
+        pixels, ids = np.zeros((0, 2)), np.zeros(0, np.int64)
+        if self.previous_image is not None and len(self._pixels):
+            tracked, good = track_forward_backward(self.previous_image, gray, self._pixels, config, self.image_size)
+            if self._valid_mask is not None:  # tracks that leave the image circle (fisheye) are lost
+                inside = np.zeros(len(tracked), bool)
+                column, row = np.round(tracked[good]).astype(int).T
+                inside[good] = self._valid_mask[row, column] > 0
+                good &= inside
+            report.tracked, report.lost = int(good.sum()), int((~good).sum())
+            if len(self._pixels) >= config.jump_min_tracks and good.sum() < config.jump_fraction * len(self._pixels):
+                report.reinitialised = "jump"
+                self.reset(f"sudden jump: only {int(good.sum())} of {len(self._pixels)} tracks survived")
+                report.tracked = 0
+            else:
+                pixels, ids = tracked[good], self._ids[good]
+                previous_bearings = self._bearings[good]
+        report.timings_ms["track"] = (time.perf_counter() - clock) * 1e3
+
+        clock = time.perf_counter()
+        bearings = self.camera.unproject(pixels) if len(pixels) else np.zeros((0, 3))
+        report.timings_ms["unproject"] += (time.perf_counter() - clock) * 1e3
+
+        clock = time.perf_counter()
+        if len(pixels) >= config.min_tracks_for_ransac:
+            threshold = config.ransac_threshold_px / max(self.camera.fx, self.camera.fy)
+            inliers = epipolar_inliers(previous_bearings, bearings, threshold, config.ransac_iterations, self._rng)
+            report.rejected = int((~inliers).sum())
+            report.rejected_pixels = pixels[~inliers]
+            pixels, ids, bearings = pixels[inliers], ids[inliers], bearings[inliers]
+        if len(pixels):
+            thinned = self._thin_crowded_cells(pixels, ids)
+            pixels, ids, bearings = pixels[thinned], ids[thinned], bearings[thinned]
+        report.timings_ms["reject"] = (time.perf_counter() - clock) * 1e3
+
+        clock = time.perf_counter()
+        if self._needs_features(pixels):
+            new_pixels = self._detect(gray, pixels)
+            report.detected = len(new_pixels)
+            if len(new_pixels):
+                pixels = np.concatenate([pixels, new_pixels])
+                ids = np.concatenate([ids, self._new_ids(len(new_pixels))])
+                report.timings_ms["detect"] = (time.perf_counter() - clock) * 1e3
+                clock = time.perf_counter()
+                bearings = np.concatenate([bearings, self.camera.unproject(new_pixels)])
+                report.timings_ms["unproject"] += (time.perf_counter() - clock) * 1e3
+            else:
+                report.timings_ms["detect"] = (time.perf_counter() - clock) * 1e3
+            self._empty_cells_after_detection = self._empty_cells(pixels)
+        if len(pixels) == 0:
+            logger.warning("camera %s: no features found in frame", self.camera.name)
+
+        self._pixels, self._bearings, self._ids = pixels, bearings, ids
+        self.previous_image = gray
+        return CameraObservations(self.camera.name, ids.copy(), pixels.copy(), bearings)
+
+    def _thin_crowded_cells(self, pixels: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """Indices (in input order) of the tracks to keep: at most ``max_per_cell_factor`` times a
+        cell's share per cell, the oldest (lowest id) first, so features stay spread over the grid."""
+        config = self.config
+        cells = config.grid_rows * config.grid_cols
+        cap = max(int(config.max_per_cell_factor * np.ceil(config.max_features / cells)), 1)
+        by_age = np.argsort(ids, kind="stable")
+        kept = select_per_cell(grid_cells(pixels[by_age], self.image_size, config.grid_rows, config.grid_cols), np.full(cells, cap))
+        return np.sort(by_age[kept])
+
+    def _empty_cells(self, pixels: np.ndarray) -> int:
+        config = self.config
+        cells = config.grid_rows * config.grid_cols
+        if len(pixels) == 0:
+            return cells
+        return int(cells - np.count_nonzero(np.bincount(grid_cells(pixels, self.image_size, config.grid_rows, config.grid_cols), minlength=cells)))
+
+    def _needs_features(self, pixels: np.ndarray) -> bool:
+        """Replenish when fewer than ``replenish_ratio * max_features`` tracks remain, or when grid
+        cells emptied since the last detection (cells without texture, e.g. sky, do not re-trigger)."""
+        if len(pixels) < self.config.replenish_ratio * self.config.max_features:
+            return True
+        return self._empty_cells(pixels) > self._empty_cells_after_detection
+
+    def _detect(self, gray: np.ndarray, existing: np.ndarray) -> np.ndarray:
+        """GFTT corners that fill under-populated grid cells (grid-based replenishment)."""
+        config = self.config
+        cells = config.grid_rows * config.grid_cols
+        per_cell = int(np.ceil(config.max_features / cells))
+        occupied = np.bincount(grid_cells(existing, self.image_size, config.grid_rows, config.grid_cols), minlength=cells) if len(existing) else np.zeros(cells, int)
+        quota = np.maximum(per_cell - occupied, 0)
+        # empty cells get their share even beyond max_features (by at most 10 %; crowded cells are
+        # thinned in track(), so the total stays close to max_features)
+        empty_share = int(np.count_nonzero(occupied == 0)) * per_cell
+        budget = max(config.max_features - len(existing), min(empty_share, config.max_features // 10))
+        if budget <= 0 or quota.sum() == 0:
+            return np.zeros((0, 2))
+        # Only the bounding box of the cells that need features is searched (GFTT's cost is per pixel).
+        width, height = self.image_size
+        needy_rows, needy_cols = np.nonzero(quota.reshape(config.grid_rows, config.grid_cols))
+        x0 = int(needy_cols.min() * width / config.grid_cols)
+        x1 = int(np.ceil((needy_cols.max() + 1) * width / config.grid_cols))
+        y0 = int(needy_rows.min() * height / config.grid_rows)
+        y1 = int(np.ceil((needy_rows.max() + 1) * height / config.grid_rows))
+        mask = detection_mask(existing, self.image_size, config.min_distance_px)
+        if self._valid_mask is not None:
+            mask = cv2.bitwise_and(mask, self._valid_mask)
+        mask = mask[y0:y1, x0:x1]
+        region = gray[y0:y1, x0:x1]
+        scale = config.detect_downscale
+        for _ in range(scale // 2):  # each pyrDown halves the size (Gaussian-filtered)
+            region = cv2.pyrDown(region)
+        if scale > 1:
+            mask = cv2.resize(mask, (region.shape[1], region.shape[0]), interpolation=cv2.INTER_NEAREST)
+        corners = cv2.goodFeaturesToTrack(
+            np.ascontiguousarray(region), maxCorners=int(min(4 * quota.sum(), 4 * config.max_features)),
+            qualityLevel=config.quality_level, minDistance=config.min_distance_px / scale, mask=np.ascontiguousarray(mask),
+            blockSize=config.block_size,
+        )
+        if corners is None:
+            return np.zeros((0, 2))
+        # pixel k of a 2x-downscaled image covers full-size pixels 2k and 2k+1 (centre 2k + 0.5)
+        corners = corners.reshape(-1, 2).astype(float) * scale + (scale - 1) / 2.0 + [x0, y0]
+        border = config.border_px
+        inside = (corners[:, 0] >= border) & (corners[:, 0] <= width - 1 - border) & (corners[:, 1] >= border) & (corners[:, 1] <= height - 1 - border)
+        corners = corners[inside]
+        corner_cells = grid_cells(corners, self.image_size, config.grid_rows, config.grid_cols)
+        keep = select_per_cell(corner_cells, quota)
+        keep = keep[np.argsort(occupied[corner_cells[keep]] > 0, kind="stable")]  # empty cells first
+        return corners[keep][:budget]

@@ -1,0 +1,416 @@
+"""Metric scale from the ground plane: the tractor axle chord between two keyframes, measured from
+road points seen by a tractor camera whose height above the road is known from the rig.
+
+Why: with intra-camera correspondences, metric scale is unobservable in straight driving (DESIGN
+2.3). The camera's height above the road is a metric length the images can compare against: the
+classic monocular-VO scale source (e.g. Kitt et al., IV 2011; Song and Chandraker, CVPR 2014).
+
+**Derivation** (body frame i, DESIGN 1 conventions). Camera centre ``c`` (``T_body_camera``),
+rigid axle midpoint ``m = (axle_x, 0, 0)``, body motion ``T_i_j = (R, t)`` with the rotation
+known and the scale unknown. Body-frame bearings ``f = R_body_camera f_i`` (view i) and
+``g = R R_body_camera f_j`` (view j, rotated into frame i). The unknown scale is the length ``rho``
+of the axle chord, whose direction ``d`` is known from the given motion (the (NH) family of DESIGN
+2: ``d ∝ R m + t - m``):
+
+    t(rho) = rho d + m - R m,     b(rho) = R c + t(rho) - c = b0 + rho d,     b0 = (R - I)(c - m)
+
+(``b`` is the camera baseline; for a pure translation ``b0 = 0`` and ``rho`` is a plain scale).
+Midpoint triangulation of the rays ``c + lambda f`` and ``c + b + mu g`` (``k = f.g``):
+
+    lambda = (f.b - k g.b) / (1 - k²),     mu = (k f.b - g.b) / (1 - k²),
+    X = c + (lambda f + b + mu g) / 2,
+
+is linear in ``b``, so the point's height is ``X_z = c_z + w.b`` with
+
+    w = (e_z + f_z (f - k g) / (1 - k²) + g_z (k f - g) / (1 - k²)) / 2.
+
+A road point has ``X_z = z_g`` (road height in the body frame, camera height ``h = c_z - z_g``):
+
+    rho_k = -(h + w.b0) / (w.d)                                                       (G)
+
+For a pure translation ``rho_k = h / h_unit,k`` with ``h_unit,k = -w.d`` the camera height above
+the point triangulated at unit scale: the textbook ratio "known height over unit-scale height".
+
+**Selecting the road.** Every road point gives the same ``rho_k``; a point at height ``z_p``
+between the road and the camera gives ``rho_k ≈ rho h / (c_z - z_p) > rho`` (it is read as a
+farther road point), points above the camera give no admissible value. Candidates are points below
+the horizon in both views (body frame) with enough parallax and positive depths. Their per-point
+sigmas come from propagating the bearing noise (``pixel_sigma / focal``) through (G) (numerical
+derivatives along the bearings' tangent planes). The road is the consensus set of a 1-D MSAC over
+the candidates' ``rho_k`` (every candidate is a hypothesis; residuals normalised by the per-point
+sigmas) -- equivalently the dominant horizontal plane below the camera at unit scale. The
+consensus set must span an area on the road (a row of wall points at one height is a horizontal
+line, consistent with a plane at another scale). The chord is the inverse-variance mean of the
+consensus set (re-selected a few times); its sigma is the formal one inflated by the Birge ratio
+(spread of the per-point values vs. their sigmas) and combined with the camera-height uncertainty
+(``height_sigma_m``: suspension, road camber), ``sigma_rho / rho = sigma_h / h``, and with the
+road-normal uncertainty (``normal_sigma``), propagated through (G) with the normal n in place of
+``e_z`` (``w = (n + (f.n) (f - k g) / (1 - k²) + (g.n) (k f - g) / (1 - k²)) / 2``).
+
+**Sensitivities** (what the measurement trusts). A road normal off by δ (e.g. an uncalibrated
+camera pitch) biases the chord by about ``D δ / h`` for road points at distance D: 1° at 10 m and
+1.65 m height is ~10 %, so the cameras' pitch relative to the road must be calibrated in the rig
+(KITTI: the cameras look ~1.2° below the direction of travel). A yaw error of the given motion
+hardly moves a forward camera's chord but biases a side camera's (~6 % per degree on the default
+rig's left camera): with ``yaw_sigma`` the cameras' chords are combined by generalised least
+squares with that common error (:func:`_combine_cameras`). The camera height enters linearly.
+"""
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+
+from ampc_vo.geometry import check_bearings, rot_z
+from ampc_vo.rig import Camera
+
+logger = logging.getLogger(__name__)
+
+_E_Z = np.array([0.0, 0.0, 1.0])
+_DIFFERENCE_STEP = 1e-6  # radians, bearing perturbation of the numerical sigma propagation
+
+
+class GroundScaleStatus(str, Enum):
+    """Outcome of a ground-plane chord measurement (``OK`` or why there is none)."""
+
+    OK = "ok"
+    NO_MOTION_DIRECTION = "no_motion_direction"    # the given motion has no axle displacement
+    SMALL_BASELINE = "small_baseline"              # too little parallax (standstill)
+    TOO_FEW_GROUND_POINTS = "too_few_ground_points"
+    GROUND_ON_A_LINE = "ground_on_a_line"          # the consensus points do not span an area (a wall's row)
+    CAMERA_NOT_ABOVE_ROAD = "camera_not_above_road"
+
+
+@dataclass(frozen=True)
+class GroundScaleOptions:
+    """Options of :func:`ground_plane_chord` (radians, metres).
+
+    ``ground_z``: z of the road surface in the body frame (the simulator puts the body origin on the
+    road, DESIGN 6; a real truck's hitch is ~1.2 m above it). ``pixel_sigma``: bearing noise in
+    pixels, divided by each camera's focal length. ``height_sigma_m``: uncertainty of the camera
+    height above the road. ``min_depression``: both bearings at least this far below the body's
+    horizontal plane. ``min_parallax``: median parallax below this is a standstill; single points
+    need ``2 * bearing sigma``. ``consensus_sigmas``: inlier threshold in per-point sigmas.
+    ``max_relative_point_sigma``: points whose chord is more uncertain than this (relative to the
+    consensus) are ignored. ``min_points``: fewer road inliers give no measurement.
+    ``min_ground_spread_m``: the road inliers must span an area: the smaller standard deviation of
+    their horizontal positions (body frame) at least this (a row of wall points at one height is
+    consistent with a horizontal plane too). ``lowest_plane_support``: hypotheses with at least this
+    fraction of the best support compete, and the lowest plane (smallest chord) among them wins.
+    ``refine_rounds``: inlier re-selections around the weighted mean. ``normal_sigma``: uncertainty (radians) of the road normal about the body z axis (pitch and roll
+    of the cameras relative to the road: calibration, load, braking), propagated into the sigma.
+    """
+
+    ground_z: float = 0.0
+    pixel_sigma: float = 1.0
+    height_sigma_m: float = 0.02
+    min_depression: float = np.deg2rad(2.0)
+    min_parallax: float = 0.003
+    consensus_sigmas: float = 3.0
+    max_relative_point_sigma: float = 0.3
+    min_points: int = 8
+    min_ground_spread_m: float = 0.3
+    lowest_plane_support: float = 0.5
+    refine_rounds: int = 3
+    normal_sigma: float = 0.0
+
+
+@dataclass(frozen=True)
+class PointChords:
+    """Per-correspondence chord values (G) of one camera: ``chord`` (N,), ``sigma`` (N,), the
+    ``candidate`` mask (N,) (below the horizon, parallax, positive depths, finite), the parallax
+    angle (N,) and ``ground_xy`` (N, 2): body-frame x, y of the point triangulated at its chord."""
+
+    chord: np.ndarray
+    sigma: np.ndarray
+    candidate: np.ndarray
+    parallax: np.ndarray
+    ground_xy: np.ndarray
+    rays: _Rays | None = None  # what (G) needs to re-evaluate with another normal or yaw
+
+    def chords_for_normal(self, normal: np.ndarray) -> np.ndarray:
+        """(G) of every correspondence for a tilted road normal (body frame, unit)."""
+        return self.chord if self.rays is None else self.rays.chords(normal=normal)
+
+    def chords_for_yaw(self, yaw_error: float) -> np.ndarray:
+        """(G) of every correspondence if the motion's yaw change were ``yaw_error`` larger."""
+        return self.chord if self.rays is None else self.rays.chords(yaw_error=yaw_error)
+
+
+@dataclass(frozen=True)
+class _Rays:
+    """What (G) needs of one camera: body-frame rays f (N, 3) and g (N, 3, rotated into frame i),
+    camera height h, ``baseline0``, the chord ``direction`` and the camera's ``offset`` c - m."""
+
+    f: np.ndarray
+    g: np.ndarray
+    height: float
+    baseline0: np.ndarray
+    direction: np.ndarray
+    offset: np.ndarray
+
+    def chords(self, normal: np.ndarray | None = None, yaw_error: float = 0.0) -> np.ndarray:
+        """(G) with a road ``normal`` (default body z) and the motion's yaw change increased by
+        ``yaw_error`` (R -> Rz(e) R, chord direction turned by e / 2: the Ackermann family)."""
+        normal = _E_Z if normal is None else normal
+        if yaw_error == 0.0:
+            return _chord_of_rays(self.f, self.g, self.height, self.baseline0, self.direction, normal)
+        turn = rot_z(yaw_error)
+        baseline0 = turn @ self.baseline0 + (turn - np.eye(3)) @ self.offset
+        return _chord_of_rays(self.f, self.g @ turn.T, self.height, baseline0, rot_z(0.5 * yaw_error) @ self.direction, normal)
+
+
+@dataclass(frozen=True)
+class GroundChord:
+    """Result of :func:`ground_plane_chord`: the metric chord of the tractor axle midpoint and its
+    1-sigma (metres), or ``None`` with the ``status`` saying why. ``inliers``: per camera, the mask
+    of the correspondences taken as road points; ``candidates``: candidate count."""
+
+    status: GroundScaleStatus
+    chord: float | None = None
+    sigma: float | None = None
+    inliers: tuple[np.ndarray, ...] = ()
+    candidates: int = 0
+
+    @property
+    def ok(self) -> bool:
+        return self.status is GroundScaleStatus.OK
+
+    @property
+    def inlier_count(self) -> int:
+        return int(sum(int(np.count_nonzero(mask)) for mask in self.inliers))
+
+    def as_scale_chord(self) -> tuple[float, float] | None:
+        """``(chord, sigma)`` for :class:`ampc_vo.backend.smoother.MotionInit.scale_chord`, or ``None``."""
+        return (float(self.chord), float(self.sigma)) if self.ok else None
+
+
+def axle_chord_direction(T_i_j: np.ndarray, axle_x: float) -> np.ndarray | None:
+    """Unit direction ``d`` of the axle displacement ``R m + t - m`` of a motion (DESIGN 2 (NH)),
+    or ``None`` when the motion does not move the axle."""
+    axle = np.array([axle_x, 0.0, 0.0])
+    displacement = T_i_j[:3, :3] @ axle + T_i_j[:3, 3] - axle
+    norm = float(np.linalg.norm(displacement))
+    return displacement / norm if norm > 1e-9 and np.isfinite(norm) else None
+
+
+def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("...i,...i->...", a, b)
+
+
+def _chord_of_rays(f: np.ndarray, g: np.ndarray, height: float, baseline0: np.ndarray, direction: np.ndarray, normal: np.ndarray = _E_Z) -> np.ndarray:
+    """Equation (G) for body-frame rays ``f`` (view i) and ``g`` (view j in frame i), shapes (N, 3):
+    the chord ``rho`` (N,), NaN where the rays are parallel or the height does not change with it.
+    With a tilted road ``normal`` n, ``e_z``, ``f_z``, ``g_z`` in ``w`` become n, f.n, g.n."""
+    k = _rowdot(f, g)
+    denominator = 1.0 - k * k
+    safe = np.where(denominator > 1e-15, denominator, np.nan)
+    f_n, g_n = f @ normal, g @ normal
+    w = 0.5 * (normal + (f_n / safe)[:, None] * (f - k[:, None] * g) + (g_n / safe)[:, None] * (k[:, None] * f - g))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return -(height + w @ baseline0) / (w @ direction)
+
+
+def _tangent_basis(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (N, 3) orthogonal to each unit vector (N, 3) and to each other."""
+    x, y, z = vectors[:, 0], vectors[:, 1], vectors[:, 2]
+    use_x = np.abs(x) < 0.9  # helper axis e_x, else e_y: first = v x helper
+    first = np.where(use_x[:, None], np.column_stack([np.zeros_like(x), z, -y]), np.column_stack([-z, np.zeros_like(x), x]))
+    first /= np.linalg.norm(first, axis=1, keepdims=True)
+    second = np.column_stack([y * first[:, 2] - z * first[:, 1], z * first[:, 0] - x * first[:, 2], x * first[:, 1] - y * first[:, 0]])
+    return first, second
+
+
+def point_chords(camera: Camera, bearings_i: np.ndarray, bearings_j: np.ndarray, T_i_j: np.ndarray, axle_x: float,
+                 options: GroundScaleOptions = GroundScaleOptions()) -> PointChords:
+    """Equation (G) and its propagated sigma for every correspondence of one camera (module docstring).
+
+    ``bearings_i``, ``bearings_j``: (N, 3) camera-frame bearings of the same points in keyframes i
+    and j; ``T_i_j``: body motion (rotation trusted, translation only for the chord direction).
+    Raises :class:`ampc_vo.errors.BearingError` for malformed bearings.
+    """
+    bearings_i = check_bearings(bearings_i, "bearings_i")
+    bearings_j = check_bearings(bearings_j, "bearings_j", count=bearings_i.shape[0])
+    count = bearings_i.shape[0]
+    direction = axle_chord_direction(T_i_j, axle_x)
+    if direction is None or count == 0:
+        return _no_point_chords(count)
+    rotation, R_body_camera = T_i_j[:3, :3], camera.R_body_camera
+    center = camera.center
+    height = float(center[2] - options.ground_z)
+    if height <= 0.0:  # a camera at or below the road sees no road from above
+        return _no_point_chords(count)
+    baseline0 = (rotation - np.eye(3)) @ (center - np.array([axle_x, 0.0, 0.0]))
+    f = bearings_i @ R_body_camera.T
+    g = bearings_j @ (rotation @ R_body_camera).T
+    # (G) and its values with each bearing moved along both tangent directions (one stacked call):
+    # the numerical gradient propagates the bearing noise into the sigma of rho
+    f_moved = [f + _DIFFERENCE_STEP * tangent for tangent in _tangent_basis(f)]
+    g_moved = [g + _DIFFERENCE_STEP * tangent for tangent in _tangent_basis(g)]
+    stacked_f = np.concatenate([f, *f_moved, f, f])
+    stacked_g = np.concatenate([g, g, g, *g_moved])
+    stacked_f /= np.linalg.norm(stacked_f, axis=1, keepdims=True)
+    stacked_g /= np.linalg.norm(stacked_g, axis=1, keepdims=True)
+    values = _chord_of_rays(stacked_f, stacked_g, height, baseline0, direction).reshape(5, count)
+    rho = values[0]
+    variance = np.sum(((values[1:] - rho) / _DIFFERENCE_STEP) ** 2, axis=0)
+    parallax = np.arccos(np.clip(_rowdot(f, g), -1.0, 1.0))
+    bearing_sigma = options.pixel_sigma / (0.5 * (camera.fx + camera.fy))
+    sigma = bearing_sigma * np.sqrt(variance)
+    # positive depths on both rays at the point's own chord
+    baseline = baseline0 + rho[:, None] * direction
+    k = _rowdot(f, g)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth_i = (_rowdot(f, baseline) - k * _rowdot(g, baseline)) / (1.0 - k * k)
+        depth_j = (k * _rowdot(f, baseline) - _rowdot(g, baseline)) / (1.0 - k * k)
+    below = np.sin(options.min_depression)
+    candidate = (
+        (f[:, 2] < -below) & (g[:, 2] < -below) & (parallax > 2.0 * bearing_sigma)
+        & np.isfinite(rho) & (rho > 0.0) & np.isfinite(sigma) & (depth_i > 0.0) & (depth_j > 0.0)
+    )
+    midpoint = center + 0.5 * (depth_i[:, None] * f + baseline + depth_j[:, None] * g)
+    offset = center - np.array([axle_x, 0.0, 0.0])
+    return PointChords(rho, sigma, candidate, parallax, midpoint[:, :2], _Rays(f, g, height, baseline0, direction, offset))
+
+
+def _no_point_chords(count: int) -> PointChords:
+    return PointChords(np.full(count, np.nan), np.full(count, np.inf), np.zeros(count, bool), np.zeros(count), np.full((count, 2), np.nan))
+
+
+def robust_chord(chords: np.ndarray, sigmas: np.ndarray, options: GroundScaleOptions = GroundScaleOptions()) -> tuple[float, float, np.ndarray] | None:
+    """1-D MSAC consensus over per-point chords (N,) with sigmas (N,) (module docstring):
+    ``(chord, statistical sigma, inlier mask)`` or ``None`` with fewer than ``min_points`` inliers.
+    Every point is a hypothesis; the cost of hypothesis h is ``sum min((rho_k - rho_h)^2 /
+    sigma_k^2, T^2)`` with ``T = consensus_sigmas`` (vectorised, N x N)."""
+    count = chords.shape[0]
+    if count < options.min_points:
+        return None
+    threshold = options.consensus_sigmas
+    normalized = (chords[None, :] - chords[:, None]) / sigmas[None, :]
+    cost = np.minimum(normalized**2, threshold**2).sum(axis=1)
+    support = (np.abs(normalized) < threshold).sum(axis=1)
+    # the road is the lowest horizontal plane: among well-supported hypotheses (box tops, kerbs,
+    # rows of wall points can form smaller clusters at larger chords) keep the lowest cluster
+    eligible = support >= max(options.min_points, options.lowest_plane_support * support.max())
+    if not np.any(eligible):
+        return None
+    lowest = int(np.flatnonzero(eligible)[np.argmin(chords[eligible])])
+    in_lowest = eligible & (np.abs(chords - chords[lowest]) < threshold * np.hypot(sigmas, sigmas[lowest]))
+    estimate = float(chords[np.flatnonzero(in_lowest)[np.argmin(cost[in_lowest])]])
+    inliers = np.zeros(count, bool)
+    for _ in range(options.refine_rounds):
+        inliers = (np.abs(chords - estimate) < threshold * sigmas) & (sigmas < options.max_relative_point_sigma * estimate)
+        if np.count_nonzero(inliers) < options.min_points:
+            return None
+        weights = 1.0 / sigmas[inliers] ** 2
+        estimate = float(np.sum(weights * chords[inliers]) / np.sum(weights))
+    inliers = (np.abs(chords - estimate) < threshold * sigmas) & (sigmas < options.max_relative_point_sigma * estimate)
+    used = int(np.count_nonzero(inliers))
+    if used < options.min_points:
+        return None
+    weights = 1.0 / sigmas[inliers] ** 2
+    formal = 1.0 / np.sqrt(np.sum(weights))
+    birge = np.sqrt(np.sum(weights * (chords[inliers] - estimate) ** 2) / max(used - 1, 1))
+    return estimate, float(formal * max(1.0, birge)), inliers
+
+
+def _normal_variance(per_camera: Sequence[PointChords], inliers: np.ndarray, sigmas: np.ndarray, chord: float, options: GroundScaleOptions) -> float:
+    """Variance of the chord from an uncertain road normal (``normal_sigma`` about the body x and
+    y axes, common to all points): numerical derivative of the inliers' weighted mean of (G)."""
+    if options.normal_sigma <= 0.0:
+        return 0.0
+    weights = 1.0 / sigmas[inliers] ** 2
+    variance, step = 0.0, 1e-4
+    for tilt in ((step, 0.0), (0.0, step)):
+        normal = np.array([tilt[0], tilt[1], 1.0]) / np.hypot(1.0, step)
+        tilted = np.concatenate([points.chords_for_normal(normal)[points.candidate] for points in per_camera])[inliers]
+        derivative = (float(np.sum(weights * tilted) / np.sum(weights)) - chord) / step
+        variance += (derivative * options.normal_sigma) ** 2 if np.isfinite(derivative) else 0.0
+    return variance
+
+
+def _formal_sigma(sigmas: np.ndarray) -> float:
+    return float(1.0 / np.sqrt(np.sum(1.0 / sigmas**2)))
+
+
+def _combine_cameras(per_camera: Sequence[PointChords], masks: Sequence[np.ndarray], birge: float, yaw_sigma: float) -> tuple[float, float]:
+    """Generalised least squares over the cameras' chords when the motion's yaw is uncertain.
+
+    Each camera's inlier mean ``rho_c`` (variance ``v_c``, inflated by the Birge ratio) shifts by
+    ``s_c e`` for a yaw error e common to all cameras (a side camera's chord is very sensitive to
+    it, a forward one's hardly: ``s_c`` numerically). Covariance ``C = diag(v_c) + yaw_sigma² s sᵀ``;
+    ``rho = 1ᵀC⁻¹rho_c / 1ᵀC⁻¹1``, variance ``1 / 1ᵀC⁻¹1``."""
+    means, variances, slopes = [], [], []
+    step = 1e-4
+    for points, mask in zip(per_camera, masks):
+        if not np.any(mask):
+            continue
+        weights = 1.0 / points.sigma[mask] ** 2
+        mean = float(np.sum(weights * points.chord[mask]) / np.sum(weights))
+        turned = float(np.sum(weights * points.chords_for_yaw(step)[mask]) / np.sum(weights))
+        means.append(mean)
+        variances.append(birge**2 / float(np.sum(weights)))
+        slopes.append((turned - mean) / step if np.isfinite(turned) else 0.0)
+    means, slopes = np.array(means), np.array(slopes)
+    covariance = np.diag(variances) + yaw_sigma**2 * np.outer(slopes, slopes)
+    information = np.linalg.solve(covariance, np.ones(len(means)))
+    total = float(np.sum(information))
+    return float(information @ means / total), float(1.0 / np.sqrt(total))
+
+
+def ground_plane_chord(
+    correspondences: Sequence[tuple[Camera, np.ndarray, np.ndarray]],
+    T_i_j: np.ndarray,
+    axle_x: float,
+    options: GroundScaleOptions = GroundScaleOptions(),
+    yaw_sigma: float = 0.0,
+) -> GroundChord:
+    """Metric chord of the axle midpoint (``axle_x``) between keyframes i and j from road points.
+
+    ``correspondences``: per camera of the body, ``(camera, bearings_i, bearings_j)`` with (N, 3)
+    camera-frame bearings of the same points in both keyframes. ``T_i_j``: the body motion
+    estimated up to scale (rotation, and the direction of the axle chord). All cameras' road points
+    vote on the same chord. ``yaw_sigma``: uncertainty (radians) of the motion's yaw change; a
+    yaw error biases each camera's chord differently (side cameras strongly), so with it the
+    cameras' chords are combined by generalised least squares (:func:`_combine_cameras`). Returns a
+    :class:`GroundChord` (``chord``/``sigma`` ``None`` and a status when there are too few road
+    points, no motion direction, or too little parallax).
+    """
+    T_i_j = np.asarray(T_i_j, dtype=float)
+    if axle_chord_direction(T_i_j, axle_x) is None:
+        return GroundChord(GroundScaleStatus.NO_MOTION_DIRECTION)
+    heights = np.array([float(camera.center[2] - options.ground_z) for camera, _, _ in correspondences])
+    if heights.size and np.all(heights <= 0.0):
+        return GroundChord(GroundScaleStatus.CAMERA_NOT_ABOVE_ROAD)
+    per_camera = [point_chords(camera, bearings_i, bearings_j, T_i_j, axle_x, options) for camera, bearings_i, bearings_j in correspondences]
+    if sum(points.chord.size for points in per_camera) == 0:
+        return GroundChord(GroundScaleStatus.TOO_FEW_GROUND_POINTS)
+    parallax = np.concatenate([points.parallax for points in per_camera])
+    if parallax.size and float(np.median(parallax)) < options.min_parallax:
+        return GroundChord(GroundScaleStatus.SMALL_BASELINE)
+    chords = np.concatenate([points.chord[points.candidate] for points in per_camera])
+    sigmas = np.concatenate([points.sigma[points.candidate] for points in per_camera])
+    consensus = robust_chord(chords, sigmas, options)
+    if consensus is None:
+        return GroundChord(GroundScaleStatus.TOO_FEW_GROUND_POINTS, candidates=int(chords.size))
+    chord, statistical_sigma, inliers = consensus
+    ground_xy = np.concatenate([points.ground_xy[points.candidate] for points in per_camera])[inliers]
+    spread = float(np.sqrt(max(np.linalg.eigvalsh(np.cov(ground_xy.T))[0], 0.0)))
+    if spread < options.min_ground_spread_m:
+        # a row of points at one height (e.g. along a wall) also looks like a horizontal "plane"
+        logger.debug("ground consensus of %d points spans %.2f m across: a line, not a road", int(np.count_nonzero(inliers)), spread)
+        return GroundChord(GroundScaleStatus.GROUND_ON_A_LINE, candidates=int(chords.size))
+    masks = []
+    offsets = np.cumsum([0] + [int(np.count_nonzero(points.candidate)) for points in per_camera])
+    for index, points in enumerate(per_camera):
+        mask = np.zeros(points.chord.shape[0], bool)
+        mask[np.flatnonzero(points.candidate)] = inliers[offsets[index]:offsets[index + 1]]
+        masks.append(mask)
+    if yaw_sigma > 0.0:
+        chord, statistical_sigma = _combine_cameras(per_camera, masks, statistical_sigma / _formal_sigma(sigmas[inliers]), yaw_sigma)
+    height_relative = options.height_sigma_m / float(np.mean(heights[heights > 0.0]))
+    sigma = float(np.sqrt(statistical_sigma**2 + (chord * height_relative) ** 2 + _normal_variance(per_camera, inliers, sigmas, chord, options)))
+    return GroundChord(GroundScaleStatus.OK, chord, sigma, tuple(masks), int(chords.size))

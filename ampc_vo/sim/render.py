@@ -1,0 +1,839 @@
+"""Render grey camera images of a textured quad scene by per-pixel ray casting (issue 6, DESIGN 6).
+
+For every pixel the ray of its centre (``Camera.unproject``, pinhole or equidistant fisheye, computed
+once per camera) is intersected with the planes of the scene's quads; the nearest hit inside its
+rectangle wins (occlusion by depth). The hit's surface coordinates ``(a, b)`` give texture
+coordinates; the texture is sampled trilinearly from a mipmap atlas with ``cv2.remap``, the level
+chosen from the pixel footprint on the surface (distance times the pixel's angular size, widened by
+the incidence angle) so that distant texture does not alias. Pixels whose ray hits nothing see a
+sky gradient. Texture coordinates: vertical quads use ``(a, b) / texture_scale`` plus a random
+per-quad shift (no two walls look alike); horizontal quads (road, ground) use world ``(x, y)``, so
+the strips of a road continue each other without seams.
+
+Speed (``scripts/benchmark_render.py``): pixels are stored tile-major (16x16 tiles). Each quad is
+tested against the tiles its projected outline's bounding box covers (quads reaching behind a
+pinhole lens are clipped at a near plane first), refined by its bounding sphere against each tile's
+cone of rays and by which side of its plane a tile's rays can reach; quads are processed near to far
+and skip tiles already filled with nearer surfaces. Large quads are split into pieces and collinear
+road strips merged. Sequences are rendered by several (spawned) processes.
+
+Conventions: ``T_world_camera = T_world_body @ T_body_camera`` (DESIGN 1), OpenCV camera axes.
+Road quads (``kind == 'road'``) carry painted lane markings along their ``axis_u`` (edge lines and a
+dashed centre line, across ``b`` in [0, height]), continuous over consecutive road strips.
+
+API: :class:`Renderer` (``render``, ``render_float``, ``depth_pass``), :func:`render_image`,
+:func:`render_sequence`, :class:`RenderOptions` / :func:`render_options_from_dict`.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import multiprocessing
+import os
+import zlib
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, Sequence
+
+import cv2
+import numpy as np
+
+from ampc_vo.errors import ConfigError
+from ampc_vo.rig import Camera, Rig
+from ampc_vo.sim.scene import Quad, Scene
+from ampc_vo.sim.textures import TextureAtlas, build_atlas, load_textures
+
+logger = logging.getLogger(__name__)
+
+_FISHEYE_MAX_INCIDENCE = np.deg2rad(100.0)  # same limit as rig.Camera.project
+_MIN_HIT_DISTANCE = 1e-3  # m: ray parameter below which a hit is ignored (surfaces at the lens)
+
+
+# ---------------------------------------------------------------------- options
+@dataclass(frozen=True)
+class RenderOptions:
+    """Renderer settings; the realism switches are filled from the sim config ``render`` section.
+
+    ``sensor_noise_sigma`` grey levels of Gaussian noise; ``exposure_variation`` relative amplitude
+    of a smooth per-camera gain change over time; ``motion_blur_samples`` sub-frames averaged over
+    ``exposure_time_s``; ``moving_vehicle`` adds a box driving along the road (an outlier source).
+    """
+
+    tile_size: int = 16
+    max_quad_extent_m: float = 20.0   # quads larger than this are split for culling
+    mip_bias: float = 0.0             # added to the mip level (negative: sharper, more aliasing)
+    ground_texture_scale: float = 2.5  # multiplies texture_scale of horizontal quads (coarser ground
+                                       # texture: KLT survives the large near-ground image motion)
+    incidence_exponent: float = 0.5   # footprint widening 1 / |cos incidence|^k (1: isotropic max)
+    sky_zenith: float = 150.0         # grey level of the sky straight up
+    sky_horizon: float = 235.0        # grey level of the sky at the horizon
+    shading: bool = True              # per-quad brightness from a sun direction and albedo jitter
+    road_markings: bool = True
+    sensor_noise_sigma: float = 0.0
+    exposure_variation: float = 0.0
+    motion_blur_samples: int = 1
+    exposure_time_s: float = 0.0
+    moving_vehicle: bool = False
+    vehicle_lead_m: float = 25.0      # m ahead of the tractor where the vehicle starts
+    vehicle_speed_mps: float = -8.0   # along the route; negative: oncoming traffic
+    vehicle_lateral_m: float = -3.0   # m from the path centre line (negative: right of the path)
+    seed: int = 0
+    processes: int = 2
+    png_compression: int = 1
+
+    def __post_init__(self) -> None:
+        if self.tile_size < 4 or self.max_quad_extent_m <= 0 or self.motion_blur_samples < 1:
+            raise ConfigError(f"render options: invalid values {self}")
+
+
+def render_options_from_dict(raw: dict[str, Any] | None, source: str = "render") -> RenderOptions:
+    """:class:`RenderOptions` from a mapping (the sim config's ``render`` section); unknown keys fail."""
+    if raw is None:
+        return RenderOptions()
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{source}: expected a mapping of render options")
+    known = {item.name: item for item in fields(RenderOptions)}
+    values: dict[str, Any] = {}
+    for key, value in raw.items():
+        if key not in known:
+            raise ConfigError(f"{source}.{key}: unknown render option (known: {', '.join(sorted(known))})")
+        default = getattr(RenderOptions(), key)
+        try:
+            values[key] = type(default)(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{source}.{key}: expected {type(default).__name__}, got {value!r}") from None
+    return RenderOptions(**values)
+
+
+# ---------------------------------------------------------------------- per-camera precomputation
+@dataclass(frozen=True)
+class CameraRays:
+    """Pixel-centre rays of one camera, tile-major: ``tile_planes[:, t, k]`` is the ray of pixel
+    ``pixel_index[t, k]``.
+
+    ``pixel_angle`` is the pixel's angular size (radians, sqrt of its solid angle); the tile cones
+    (``tile_axis``, ``tile_cos``/``tile_half_angle``) contain every ray of their tile.
+    """
+
+    tile_planes: np.ndarray     # (3, T, P) float32 unit rays (camera frame), one plane per component
+    pixel_index: np.ndarray     # (T, P) int64 flat image index (tiles at the border repeat pixels)
+    image_order: np.ndarray     # (H*W,) int64 position of each image pixel in the flattened tiles
+    tile_axis: np.ndarray       # (T, 3) float64
+    tile_half_angle: np.ndarray  # (T,) float64
+    pixel_angle: np.ndarray     # (H, W) float32
+    valid: np.ndarray           # (H, W) bool: inside the lens' field (fisheye image circle)
+    rays_planes: np.ndarray     # (3, H, W) float32 unit rays in image order, one plane per component
+    camera_axis: np.ndarray     # (3,) mean ray
+    camera_half_angle: float
+    tile_row: np.ndarray        # (T,) tile grid row
+    tile_axis_f32: np.ndarray
+    tile_half_angle_f32: np.ndarray
+    tile_sin_half: np.ndarray   # (T,) float32 sin(min(half angle, 90 deg))
+    tile_beyond_90: np.ndarray  # (T,) bool: some ray of the tile may point behind the lens plane
+    tile_col: np.ndarray        # (T,) tile grid column
+
+
+def camera_rays(camera: Camera, tile_size: int = 16) -> CameraRays:
+    """Precompute the rays of ``camera`` (once per camera; DESIGN 6)."""
+    width, height = camera.width, camera.height
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    pixels = np.stack([u.ravel(), v.ravel()], axis=1)
+    rays = camera.unproject(pixels)
+    # Angular size: rays half a pixel apart in x and y; sqrt of the spanned solid angle.
+    ray_dx = camera.unproject(pixels + [0.5, 0.0]) - camera.unproject(pixels - [0.5, 0.0])
+    ray_dy = camera.unproject(pixels + [0.0, 0.5]) - camera.unproject(pixels - [0.0, 0.5])
+    pixel_angle = np.sqrt(np.linalg.norm(np.cross(ray_dx, ray_dy), axis=1)).reshape(height, width)
+    incidence = np.arccos(np.clip(rays[:, 2], -1.0, 1.0)).reshape(height, width)
+    valid = np.ones((height, width), bool) if camera.model == "pinhole" else incidence < _FISHEYE_MAX_INCIDENCE
+
+    tiles_y, tiles_x = -(-height // tile_size), -(-width // tile_size)
+    ty, tx, ky, kx = np.meshgrid(np.arange(tiles_y), np.arange(tiles_x), np.arange(tile_size), np.arange(tile_size), indexing="ij")
+    rows = np.minimum(ty * tile_size + ky, height - 1)
+    cols = np.minimum(tx * tile_size + kx, width - 1)
+    pixel_index = (rows * width + cols).reshape(tiles_y * tiles_x, tile_size * tile_size)
+    tile_rays = rays[pixel_index]
+    axis = tile_rays.mean(axis=1)
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    cos_max = np.einsum("tpk,tk->tp", tile_rays, axis).min(axis=1)
+    half_angle = np.arccos(np.clip(cos_max, -1.0, 1.0)) + 1e-4
+    # Position of every image pixel in the flattened tile arrays (first occurrence is the true one).
+    image_order = np.empty(height * width, np.int64)
+    flat = pixel_index.ravel()
+    image_order[flat[::-1]] = np.arange(flat.size)[::-1]
+    camera_axis = rays.mean(axis=0)
+    camera_axis /= np.linalg.norm(camera_axis)
+    camera_half = float(np.arccos(np.clip((rays @ camera_axis).min(), -1.0, 1.0))) + 1e-3
+    return CameraRays(
+        pixel_index=pixel_index, image_order=image_order,
+        tile_planes=np.ascontiguousarray(tile_rays.transpose(2, 0, 1)).astype(np.float32),
+        tile_axis=axis, tile_half_angle=half_angle, pixel_angle=pixel_angle.astype(np.float32),
+        valid=valid,
+        rays_planes=np.ascontiguousarray(rays.reshape(height, width, 3).transpose(2, 0, 1)).astype(np.float32),
+        camera_axis=camera_axis, camera_half_angle=camera_half,
+        tile_row=np.repeat(np.arange(tiles_y), tiles_x), tile_col=np.tile(np.arange(tiles_x), tiles_y),
+        tile_axis_f32=axis.astype(np.float32), tile_half_angle_f32=half_angle.astype(np.float32),
+        tile_sin_half=np.sin(np.minimum(half_angle, np.pi / 2)).astype(np.float32),
+        tile_beyond_90=np.arccos(np.clip(axis[:, 2], -1.0, 1.0)) + half_angle >= np.deg2rad(89.0),
+    )
+
+
+# ---------------------------------------------------------------------- prepared scene
+@dataclass(frozen=True)
+class PreparedQuads:
+    """Quads split into pieces of at most ``max_quad_extent_m`` and stored as arrays (world frame)."""
+
+    origin: np.ndarray      # (Q, 3)
+    axis_u: np.ndarray      # (Q, 3)
+    axis_v: np.ndarray      # (Q, 3)
+    normal: np.ndarray      # (Q, 3)
+    width: np.ndarray       # (Q,)
+    height: np.ndarray      # (Q,)
+    offset_a: np.ndarray    # (Q,) m: position of the piece in its parent quad (surface coordinates)
+    offset_b: np.ndarray
+    texture_map: np.ndarray      # (Q, 2, 3) m: texture coordinates = M @ (a, b, 1) (see prepare_quads)
+    road_along: np.ndarray       # (Q,) m: along-road coordinate of the piece's a = 0 (continuous along a road)
+    texture_scale: np.ndarray    # (Q,)
+    texture_index: np.ndarray    # (Q,) int into the atlas
+    gain: np.ndarray        # (Q,) brightness factor
+    road: np.ndarray        # (Q,) bool: paint lane markings
+    parent_height: np.ndarray    # (Q,) m: road width across (parent quad's height)
+    centre: np.ndarray      # (Q, 3) bounding sphere
+    radius: np.ndarray      # (Q,)
+
+    def __len__(self) -> int:
+        return int(self.width.shape[0])
+
+
+_SUN_DIRECTION = np.array([0.45, 0.3, 0.84]) / np.linalg.norm([0.45, 0.3, 0.84])
+
+
+def _road_chain_offsets(quads: Sequence[Quad]) -> np.ndarray:
+    """Along-road coordinate of each road quad's start, continuous over consecutive road quads.
+
+    Roads come as chains of short overlapping strips (``scene.build_scene``); the lane-marking dashes
+    must not restart on every strip. Consecutive road quads whose centre-line starts are close chain
+    up: the offset grows by the distance between their starts along the previous strip.
+    """
+    offsets = np.zeros(len(quads))
+    previous: tuple[np.ndarray, np.ndarray, float, float] | None = None
+    for index, quad in enumerate(quads):
+        if quad.kind != "road":
+            previous = None
+            continue
+        start = np.asarray(quad.origin, float) + 0.5 * quad.height * np.asarray(quad.axis_v, float)
+        if previous is not None:
+            prev_start, prev_u, prev_offset, prev_width = previous
+            step = float((start - prev_start) @ prev_u)
+            if 0.0 <= step <= prev_width + 0.5 and np.linalg.norm(start - prev_start - step * prev_u) < 1.0:
+                offsets[index] = prev_offset + step
+        previous = (start, np.asarray(quad.axis_u, float), offsets[index], quad.width)
+    return offsets
+
+
+def _times(vectors: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """``vectors (N, 3) @ matrix`` for a (3, M) matrix or a (3,) vector, as three broadcast products.
+
+    No BLAS call: its thread pool costs more than these small products and oversubscribes the cores
+    (with OpenBLAS threads the renderer ran 2-3x slower)."""
+    if matrix.ndim == 1:
+        return vectors[:, 0] * matrix[0] + vectors[:, 1] * matrix[1] + vectors[:, 2] * matrix[2]
+    return vectors[:, 0:1] * matrix[0] + vectors[:, 1:2] * matrix[1] + vectors[:, 2:3] * matrix[2]
+
+
+_NEAR_PLANE_M = 1e-3
+
+
+def _clip_polygon_near(points: np.ndarray, z_near: float) -> np.ndarray:
+    """Sutherland-Hodgman clip of a convex polygon (K, 3) to the half-space z >= z_near."""
+    output = []
+    count = len(points)
+    for k in range(count):
+        current, following = points[k], points[(k + 1) % count]
+        current_in, following_in = current[2] >= z_near, following[2] >= z_near
+        if current_in:
+            output.append(current)
+        if current_in != following_in:
+            fraction = (z_near - current[2]) / (following[2] - current[2])
+            output.append(current + fraction * (following - current))
+    return np.array(output).reshape(-1, 3)
+
+
+def merge_collinear_strips(quads: Sequence[Quad], tolerance: float = 1e-6) -> list[Quad]:
+    """Merge consecutive quads that continue each other along ``axis_u`` on straight stretches.
+
+    Roads and shoulders come as chains of short overlapping strips; on straights consecutive strips
+    share their axes and lie on one line, and one long quad renders the same pixels with less
+    overdraw. Only horizontal quads of the same kind, texture, scale and height are merged (their
+    texture is mapped from world x, y, so it is unchanged).
+    """
+    merged: list[Quad] = []
+    for quad in quads:
+        if merged:
+            last = merged[-1]
+            step = np.asarray(quad.origin, float) - np.asarray(last.origin, float)
+            along = float(step @ np.asarray(last.axis_u, float))
+            same = (quad.kind == last.kind and quad.texture == last.texture and quad.texture_scale == last.texture_scale
+                    and abs(quad.height - last.height) < tolerance
+                    and np.allclose(quad.axis_u, last.axis_u, atol=tolerance) and np.allclose(quad.axis_v, last.axis_v, atol=tolerance)
+                    and abs(float(np.cross(last.axis_u, last.axis_v)[2])) > 0.9)
+            if same and 0.0 < along <= last.width + tolerance and np.linalg.norm(step - along * np.asarray(last.axis_u, float)) < tolerance:
+                merged[-1] = Quad(last.origin, last.axis_u, last.axis_v, max(last.width, along + quad.width), last.height,
+                                  last.kind, last.texture, last.texture_scale)
+                continue
+        merged.append(quad)
+    return merged
+
+
+def prepare_quads(quads: Sequence[Quad], atlas: TextureAtlas, options: RenderOptions, seed_offset: int = 0) -> PreparedQuads:
+    """Split, shade and index ``quads`` for rendering (pure: same input, same output).
+
+    Texture coordinates (metres, divided by ``texture_scale`` for the texture) are an affine map of
+    the surface coordinates: for horizontal quads (road, ground) the world ``(x, y)``, so that
+    adjacent strips continue each other's texture seamlessly; for the others ``(a, b)`` plus a random
+    per-quad shift, so that quads sharing a texture do not look identical (markers: no shift).
+    """
+    columns: dict[str, list] = {name: [] for name in PreparedQuads.__dataclass_fields__}
+    road_offsets = _road_chain_offsets(quads)
+    for parent_index, quad in enumerate(quads):
+        if quad.texture not in atlas.names:
+            raise ConfigError(f"quad {parent_index} ({quad.kind}): texture {quad.texture!r} not in the atlas {atlas.names}")
+        if quad.texture_scale <= 0 or quad.width <= 0 or quad.height <= 0:
+            raise ConfigError(f"quad {parent_index} ({quad.kind}): width, height and texture_scale must be positive")
+        # Seeded by the quad's geometry, not its index: the look does not depend on the scene order.
+        geometry = np.concatenate([quad.origin, quad.axis_u, quad.axis_v, [quad.width, quad.height]]).astype(np.float64)
+        rng = np.random.default_rng([options.seed, seed_offset, zlib.crc32(geometry.tobytes())])
+        axis_u = np.asarray(quad.axis_u, float)
+        axis_v = np.asarray(quad.axis_v, float)
+        origin = np.asarray(quad.origin, float)
+        normal = np.cross(axis_u, axis_v)
+        horizontal = abs(normal[2]) > 0.9 and quad.kind != "marker"
+        if horizontal:
+            texture_map = np.array([[axis_u[0], axis_v[0], origin[0]], [axis_u[1], axis_v[1], origin[1]]])
+        elif quad.kind == "marker":
+            texture_map = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+        else:
+            shift = rng.uniform(0.0, quad.texture_scale, 2)
+            texture_map = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]]])
+        if not options.shading or quad.kind == "marker":
+            gain = 1.0
+        elif horizontal:
+            gain = 1.0 if quad.kind == "road" else rng.uniform(0.92, 1.05)
+        else:  # walls: lit by the sun by orientation, albedo jitter
+            gain = (0.72 + 0.3 * abs(float(normal @ _SUN_DIRECTION))) * rng.uniform(0.85, 1.1)
+        pieces_u = max(1, math.ceil(quad.width / options.max_quad_extent_m))
+        pieces_v = max(1, math.ceil(quad.height / options.max_quad_extent_m))
+        piece_w, piece_h = quad.width / pieces_u, quad.height / pieces_v
+        for i in range(pieces_u):
+            for j in range(pieces_v):
+                piece_origin = origin + i * piece_w * axis_u + j * piece_h * axis_v
+                columns["origin"].append(piece_origin)
+                columns["axis_u"].append(axis_u)
+                columns["axis_v"].append(axis_v)
+                columns["normal"].append(normal)
+                columns["width"].append(piece_w)
+                columns["height"].append(piece_h)
+                columns["offset_a"].append(i * piece_w)
+                columns["offset_b"].append(j * piece_h)
+                columns["texture_map"].append(texture_map)
+                columns["road_along"].append(road_offsets[parent_index])
+                columns["texture_scale"].append(quad.texture_scale * (options.ground_texture_scale if horizontal else 1.0))
+                columns["texture_index"].append(atlas.index(quad.texture))
+                columns["gain"].append(gain)
+                columns["road"].append(quad.kind == "road" and options.road_markings)
+                columns["parent_height"].append(quad.height)
+                columns["centre"].append(piece_origin + 0.5 * piece_w * axis_u + 0.5 * piece_h * axis_v)
+                columns["radius"].append(0.5 * math.hypot(piece_w, piece_h))
+    if not columns["width"]:
+        empty = {name: np.zeros((0, 3)) for name in ("origin", "axis_u", "axis_v", "normal", "centre")}
+        empty.update({name: np.zeros(0) for name in ("width", "height", "offset_a", "offset_b", "road_along", "texture_scale", "gain", "parent_height", "radius")})
+        return PreparedQuads(**empty, texture_map=np.zeros((0, 2, 3)), texture_index=np.zeros(0, np.int64), road=np.zeros(0, bool))
+    arrays = {name: np.asarray(values) for name, values in columns.items()}
+    arrays["texture_index"] = arrays["texture_index"].astype(np.int64)
+    arrays["road"] = arrays["road"].astype(bool)
+    return PreparedQuads(**arrays)
+
+
+def _concat_prepared(first: PreparedQuads, second: PreparedQuads) -> PreparedQuads:
+    return PreparedQuads(**{name: np.concatenate([getattr(first, name), getattr(second, name)]) for name in PreparedQuads.__dataclass_fields__})
+
+
+def _paint_markings(surface: np.ndarray, along: np.ndarray, across: np.ndarray, road_width: np.ndarray,
+                    footprint_across: np.ndarray, footprint_along: np.ndarray) -> np.ndarray:
+    """Lane paint in road coordinates (m): solid edge lines 0.35 m inside both edges (0.15 m wide)
+    and a dashed centre line (0.12 m wide, 3 m dash, 6 m gap), box-filtered by the pixel footprint."""
+    width_px = np.maximum(footprint_across, 1e-3)
+    along_px = np.maximum(footprint_along, 1e-3)
+
+    def ramp(value: np.ndarray) -> np.ndarray:
+        return np.minimum(np.maximum(value + np.float32(0.5), np.float32(0.0)), np.float32(1.0))
+
+    def band(distance: np.ndarray, half_width: float, pixel: np.ndarray) -> np.ndarray:
+        return ramp((np.float32(half_width) - np.abs(distance)) / pixel)
+
+    edge = np.maximum(band(across - np.float32(0.35), 0.075, width_px), band(across - (road_width - np.float32(0.35)), 0.075, width_px))
+    phase = along - np.float32(9.0) * np.floor(along / np.float32(9.0))
+    dash_along = np.minimum(ramp(phase / along_px), ramp((np.float32(3.0) - phase) / along_px))
+    centre = band(across - np.float32(0.5) * road_width, 0.06, width_px) * dash_along
+    coverage = np.maximum(edge, centre).astype(np.float32, copy=False)
+    return surface + coverage * (np.float32(215.0) - surface)
+
+
+_OUTLINE_SAMPLES = 8  # points per quad edge for the projected bounding box
+
+
+@dataclass(frozen=True)
+class VisibilityBuffer:
+    """Result of the depth pass, per pixel (H, W): ray distance (inf: sky), quad index (-1: sky),
+    surface coordinates (a, b) in the hit quad's parent (m), |cos| of the incidence angle."""
+
+    depth: np.ndarray
+    quad_id: np.ndarray
+    coord_a: np.ndarray
+    coord_b: np.ndarray
+    texture_s: np.ndarray  # texture coordinates (m) = the quad's texture map applied to (a, b)
+    texture_t: np.ndarray
+    cos_incidence: np.ndarray
+    quads: "PreparedQuads"
+
+
+# ---------------------------------------------------------------------- the renderer
+class Renderer:
+    """Renders one scene for any camera and pose; caches per-camera rays and the texture atlas."""
+
+    def __init__(self, scene: Scene, textures: TextureAtlas | dict[str, np.ndarray] | None = None,
+                 options: RenderOptions | None = None) -> None:
+        self.options = options or RenderOptions()
+        if textures is None:
+            textures = load_textures(seed=self.options.seed)
+        self.atlas = textures if isinstance(textures, TextureAtlas) else build_atlas(textures)
+        self.quads = prepare_quads(merge_collinear_strips(scene.quads), self.atlas, self.options)
+        self._rays: dict[tuple, CameraRays] = {}
+        self.last_stats: dict[str, int] = {}  # work of the last depth pass (candidates, quads and ray tests)
+
+    def rays_of(self, camera: Camera) -> CameraRays:
+        key = (camera.name, camera.model, camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
+               tuple(camera.distortion))
+        if key not in self._rays:
+            self._rays[key] = camera_rays(camera, self.options.tile_size)
+        return self._rays[key]
+
+    # ------------------------------------------------------------------ visibility
+    def _candidate_tiles(self, camera: Camera, rays: CameraRays, quads: PreparedQuads,
+                         centre: np.ndarray, origin_c: np.ndarray, normal_c: np.ndarray,
+                         outline_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Quads that may be visible and, per quad, the tiles its rays may hit (conservative).
+
+        Three tests, all conservative: for quads entirely in front of the lens, the image bounding
+        box of their projected outline; the quad's bounding sphere against each tile's ray cone;
+        and the quad's plane must be reachable from the tile (some ray points towards its side).
+        """
+        distance = np.linalg.norm(centre, axis=1)
+        inside = distance <= quads.radius * 1.0001
+        safe_distance = np.maximum(distance, 1e-9)
+        angular_radius = np.arcsin(np.clip(quads.radius / safe_distance, 0.0, 1.0))
+        cos_axis = _times(centre, rays.camera_axis) / safe_distance
+        in_view = inside | (np.arccos(np.clip(cos_axis, -1, 1)) <= rays.camera_half_angle + angular_radius)
+        candidates = np.flatnonzero(in_view)
+        num_tiles = len(rays.tile_axis)
+        if candidates.size == 0:
+            return candidates, np.zeros((0, num_tiles), bool)
+        # Tile-grid bounding box of the projected outline when all of it is safely in front.
+        outline = outline_c[candidates]  # (C, S, 3)
+        flat = outline.reshape(-1, 3)
+        if camera.model == "pinhole":
+            front = flat[:, 2] > 0.05 * np.linalg.norm(flat, axis=1)
+        else:
+            front = np.arctan2(np.hypot(flat[:, 0], flat[:, 1]), flat[:, 2]) < np.deg2rad(95.0)
+        front = front.reshape(outline.shape[:2]).all(axis=1)
+        tiles_y, tiles_x = int(rays.tile_row[-1]) + 1, int(rays.tile_col[-1]) + 1
+        box = np.zeros((candidates.size, 4))
+        box[:] = (0, tiles_x - 1, 0, tiles_y - 1)
+        if front.any():
+            pixels, _ = camera.project(outline[front].reshape(-1, 3))
+            pixels = pixels.reshape(-1, outline.shape[1], 2)
+            margin, tile = 2.0, self.options.tile_size
+            box[front] = np.stack([
+                np.floor((pixels[..., 0].min(axis=1) - margin) / tile), np.floor((pixels[..., 0].max(axis=1) + margin) / tile),
+                np.floor((pixels[..., 1].min(axis=1) - margin) / tile), np.floor((pixels[..., 1].max(axis=1) + margin) / tile),
+            ], axis=1)
+        if camera.model == "pinhole" and not np.any(camera.distortion) and not front.all():
+            # Quads reaching behind the lens (ground around the vehicle): clip them at a near plane;
+            # an undistorted pinhole maps the clipped polygon's edges to straight segments.
+            tile = self.options.tile_size
+            for index in np.flatnonzero(~front):
+                corners = outline[index, ::_OUTLINE_SAMPLES]
+                polygon = _clip_polygon_near(corners, _NEAR_PLANE_M)
+                if len(polygon) == 0:
+                    box[index] = (1, 0, 1, 0)  # empty
+                    continue
+                pixels = np.stack([camera.fx * polygon[:, 0] / polygon[:, 2] + camera.cx, camera.fy * polygon[:, 1] / polygon[:, 2] + camera.cy], axis=1)
+                pixels = np.clip(pixels, -1e6, 1e6)
+                box[index] = (np.floor((pixels[:, 0].min() - 2.0) / tile), np.floor((pixels[:, 0].max() + 2.0) / tile),
+                              np.floor((pixels[:, 1].min() - 2.0) / tile), np.floor((pixels[:, 1].max() + 2.0) / tile))
+        wide = np.zeros(candidates.size, bool)  # quads that also need the tiles seeing behind the lens
+        if camera.model == "fisheye" and not front.all():
+            # Clip at a near plane too; the clipped polygon's edges are curves in a fisheye image, so
+            # they are sampled densely. Parts behind the lens plane can only appear in tiles whose
+            # rays reach beyond 90 degrees of incidence (image corners of very wide lenses).
+            tile = self.options.tile_size
+            steps = np.linspace(0.0, 1.0, 32, endpoint=False)[:, None]
+            for index in np.flatnonzero(~front):
+                corners = outline[index, ::_OUTLINE_SAMPLES]
+                polygon = _clip_polygon_near(corners, _NEAR_PLANE_M)
+                wide[index] = bool(np.any(corners[:, 2] < _NEAR_PLANE_M))
+                if len(polygon) == 0:
+                    box[index] = (1, 0, 1, 0)  # empty (the wide tiles may still apply)
+                    continue
+                samples = (polygon[:, None, :] + steps[None] * (np.roll(polygon, -1, axis=0) - polygon)[:, None, :]).reshape(-1, 3)
+                pixels, _ = camera.project(samples)
+                margin = 4.0
+                box[index] = (np.floor((pixels[:, 0].min() - margin) / tile), np.floor((pixels[:, 0].max() + margin) / tile),
+                              np.floor((pixels[:, 1].min() - margin) / tile), np.floor((pixels[:, 1].max() + margin) / tile))
+        box[:, 0::2] = np.maximum(box[:, 0::2], 0)
+        box[:, 1] = np.minimum(box[:, 1], tiles_x - 1)
+        box[:, 3] = np.minimum(box[:, 3], tiles_y - 1)
+        nonempty = ((box[:, 0] <= box[:, 1]) & (box[:, 2] <= box[:, 3])) | wide
+        candidates, box, wide = candidates[nonempty], box[nonempty], wide[nonempty]
+        if candidates.size == 0:
+            return candidates, np.zeros((0, num_tiles), bool)
+        overlap = ((rays.tile_col[None, :] >= box[:, 0:1]) & (rays.tile_col[None, :] <= box[:, 1:2])
+                   & (rays.tile_row[None, :] >= box[:, 2:3]) & (rays.tile_row[None, :] <= box[:, 3:4]))
+        if wide.any():
+            overlap[wide] |= rays.tile_beyond_90[None, :]
+        # Sphere vs tile cone: angle(axis, centre) <= half_t + radius_q, as cos(angle) >= cos(sum).
+        direction = (centre[candidates] / safe_distance[candidates, None]).astype(np.float32)
+        cos_angle = _times(direction, rays.tile_axis_f32.T)
+        total = rays.tile_half_angle_f32[None, :] + angular_radius[candidates, None].astype(np.float32)
+        overlap &= (cos_angle >= np.cos(np.minimum(total, np.float32(np.pi)))) | inside[candidates, None]
+        # Plane side: need a ray d of the tile with sign(d.n) == sign(o.n).
+        side = np.sign(np.einsum("qk,qk->q", origin_c[candidates], normal_c[candidates]))
+        toward = _times((side[:, None] * normal_c[candidates]).astype(np.float32), rays.tile_axis_f32.T)
+        overlap &= toward > -rays.tile_sin_half[None, :]
+        keep = overlap.any(axis=1)
+        return candidates[keep], overlap[keep]
+
+    def depth_pass(self, camera: Camera, T_world_camera: np.ndarray, extra: PreparedQuads | None = None) -> VisibilityBuffer:
+        """Nearest hit per pixel (ray casting with a depth test), as a :class:`VisibilityBuffer`."""
+        quads = self.quads if extra is None else _concat_prepared(self.quads, extra)
+        rays = self.rays_of(camera)
+        R_world_camera = np.asarray(T_world_camera[:3, :3], float)
+        camera_position = np.asarray(T_world_camera[:3, 3], float)
+        num_tiles, tile_pixels = rays.pixel_index.shape
+        depth = np.full((num_tiles, tile_pixels), np.inf, np.float32)
+        quad_id = np.full((num_tiles, tile_pixels), -1, np.int32)
+        axes_c = np.zeros((0, 3, 3), np.float32)
+        plane = np.zeros((0, 3))
+        self.last_stats = {"candidates": 0, "quads_tested": 0, "ray_tests": 0}
+        if len(quads):
+            centre = _times(quads.centre - camera_position, R_world_camera)
+            origin_c = _times(quads.origin - camera_position, R_world_camera)
+            u_c, v_c, n_c = (_times(axis, R_world_camera) for axis in (quads.axis_u, quads.axis_v, quads.normal))
+            steps = np.linspace(0.0, 1.0, _OUTLINE_SAMPLES, endpoint=False)
+            w, h = quads.width[:, None, None], quads.height[:, None, None]
+            along_u = steps[None, :, None] * w * u_c[:, None, :]
+            along_v = steps[None, :, None] * h * v_c[:, None, :]
+            o = origin_c[:, None, :]
+            outline = np.concatenate([o + along_u, o + w * u_c[:, None, :] + along_v,
+                                      o + h * v_c[:, None, :] + w * u_c[:, None, :] - along_u, o + h * v_c[:, None, :] - along_v], axis=1)
+            candidates, overlap = self._candidate_tiles(camera, rays, quads, centre, origin_c, n_c, outline)
+            nearest = np.linalg.norm(centre[candidates], axis=1) - quads.radius[candidates]
+            order = np.argsort(nearest)
+            axes_c = np.stack([n_c, u_c, v_c], axis=2).astype(np.float32)  # (Q, 3, 3): columns n, u, v
+            plane = np.einsum("qk,qkj->qj", origin_c, np.stack([n_c, u_c, v_c], axis=2))  # o.n, o.u, o.v
+            plane_n = plane[:, 0].astype(np.float32)
+            half_w, half_h = (0.5 * quads.width).astype(np.float32), (0.5 * quads.height).astype(np.float32)
+            centre_u, centre_v = (plane[:, 1] + half_w).astype(np.float32), (plane[:, 2] + half_h).astype(np.float32)
+            tile_far = np.full(num_tiles, np.inf, np.float32)  # farthest depth in each tile (occlusion culling)
+            tested_quads = tested_pixels = 0
+            for k in order:
+                q = int(candidates[k])
+                tiles = np.flatnonzero(overlap[k])
+                tiles = tiles[tile_far[tiles] > nearest[k]]
+                if tiles.size == 0:
+                    continue
+                tested_quads += 1
+                tested_pixels += tiles.size * tile_pixels
+                ray_x, ray_y, ray_z = rays.tile_planes[0][tiles], rays.tile_planes[1][tiles], rays.tile_planes[2][tiles]
+                n_x, n_y, n_z = axes_c[q, :, 0]
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    t = plane_n[q] / (ray_x * n_x + ray_y * n_y + ray_z * n_z)
+                current = depth[tiles]
+                hit = (t > _MIN_HIT_DISTANCE) & (t < current)
+                u_x, u_y, u_z = axes_c[q, :, 1]
+                hit &= np.abs(t * (ray_x * u_x + ray_y * u_y + ray_z * u_z) - centre_u[q]) <= half_w[q]
+                v_x, v_y, v_z = axes_c[q, :, 2]
+                hit &= np.abs(t * (ray_x * v_x + ray_y * v_y + ray_z * v_z) - centre_v[q]) <= half_h[q]
+                if not hit.any():
+                    continue
+                np.copyto(current, t, where=hit)
+                depth[tiles] = current
+                tile_far[tiles] = current.max(axis=1)
+                ids = quad_id[tiles]
+                np.copyto(ids, np.int32(q), where=hit)
+                quad_id[tiles] = ids
+            self.last_stats = {"candidates": int(candidates.size), "quads_tested": tested_quads, "ray_tests": tested_pixels}
+        order = rays.image_order
+        shape = (camera.height, camera.width)
+        depth_image = depth.ravel()[order].reshape(shape)
+        id_image = quad_id.ravel()[order].reshape(shape)
+        # Surface coordinates and incidence of the winning quad, per pixel (one gather of its constants).
+        # Surface and texture coordinates and incidence of the winning quad, per pixel, on whole-image
+        # arrays (sky pixels use quad 0 at distance 0 and are ignored by the shading).
+        hit_image = id_image >= 0
+        q = np.maximum(id_image, 0).astype(np.intp)
+        t = np.where(hit_image, depth_image, np.float32(0.0))
+        ray_x, ray_y, ray_z = rays.rays_planes
+        if len(quads):
+            table = np.concatenate([axes_c.reshape(-1, 9), plane.astype(np.float32), quads.offset_a[:, None].astype(np.float32),
+                                    quads.offset_b[:, None].astype(np.float32), quads.texture_map.reshape(-1, 6).astype(np.float32)], axis=1)
+        else:
+            table = np.zeros((1, 20), np.float32)
+        column = np.take(np.ascontiguousarray(table.T), q, axis=1)  # (20, H, W): one gather, contiguous planes
+        # axes_c columns are n, u, v: row-major flattening gives (n0 u0 v0 n1 u1 v1 n2 u2 v2).
+        d_n = ray_x * column[0] + ray_y * column[3] + ray_z * column[6]
+        d_u = ray_x * column[1] + ray_y * column[4] + ray_z * column[7]
+        d_v = ray_x * column[2] + ray_y * column[5] + ray_z * column[8]
+        coord_a = t * d_u - column[10] + column[12]
+        coord_b = t * d_v - column[11] + column[13]
+        texture_s = column[14] * coord_a + column[15] * coord_b + column[16]
+        texture_t = column[17] * coord_a + column[18] * coord_b + column[19]
+        cos_incidence = np.abs(d_n)
+        return VisibilityBuffer(depth_image, id_image, coord_a, coord_b, texture_s, texture_t, cos_incidence, quads)
+
+    # ------------------------------------------------------------------ shading
+    def render_float(self, camera: Camera, T_world_camera: np.ndarray, extra_quads: Sequence[Quad] = ()) -> np.ndarray:
+        """Noise-free image as float32 grey levels (H, W)."""
+        return self._render_float_and_depth(camera, T_world_camera, extra_quads)[0]
+
+    def render_with_depth(self, camera: Camera, T_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(uint8 image (H, W), ray distance (H, W) float32, inf where the sky is seen)`` from one
+        depth pass (ground truth for tracking checks, ``ampc_vo.tools.klt_survival``)."""
+        image, depth = self._render_float_and_depth(camera, T_world_camera, ())
+        return to_uint8(image), depth
+
+    def _render_float_and_depth(self, camera: Camera, T_world_camera: np.ndarray,
+                                extra_quads: Sequence[Quad]) -> tuple[np.ndarray, np.ndarray]:
+        extra = prepare_quads(extra_quads, self.atlas, self.options, seed_offset=10**6) if extra_quads else None
+        visible = self.depth_pass(camera, T_world_camera, extra)
+        quads = visible.quads
+        rays = self.rays_of(camera)
+        options = self.options
+        atlas = self.atlas
+        R_world_camera = np.asarray(T_world_camera[:3, :3], float)
+        hit = visible.quad_id >= 0
+        image = np.empty(hit.shape, np.float32)
+        if hit.any():
+            # Full-image arrays (sky pixels use quad 0, depth inf, and are overwritten below): no mask gathers.
+            q = np.maximum(visible.quad_id, 0).astype(np.intp)
+            t = visible.depth
+            # Per-quad constants, gathered per pixel in one call (contiguous planes).
+            constants = np.take(np.stack([atlas.size / quads.texture_scale, atlas.level_x[quads.texture_index] + (atlas.pad - 0.5),
+                                          quads.gain, quads.road, quads.road_along, quads.parent_height]).astype(np.float32), q, axis=1)
+            texels_per_m, texture_x, gain, road_flag, road_along, road_width = constants
+            incidence = np.maximum(visible.cos_incidence, np.float32(0.02))
+            incidence = np.sqrt(incidence) if options.incidence_exponent == 0.5 else incidence ** np.float32(options.incidence_exponent)
+            pixel_m = t * rays.pixel_angle
+            footprint_m = pixel_m / incidence
+            level = np.log2(np.maximum(footprint_m * texels_per_m, np.float32(1e-6)))
+            if options.mip_bias:
+                level += np.float32(options.mip_bias)
+            np.clip(level, 0.0, atlas.num_levels - 1.0, out=level)
+            level0 = level.astype(np.int32)
+            fraction = level - level0
+            # Wrap once in level-0 texels: the wrapped coordinate of level l is that times 2^-l.
+            # Texture rows grow downwards while b grows along axis_v (up on walls): flip t.
+            size = np.float32(atlas.size)
+            inv_size = np.float32(1.0 / atlas.size)
+            s_texels = visible.texture_s * texels_per_m
+            t_texels = visible.texture_t * -texels_per_m
+            s_texels -= size * np.floor(s_texels * inv_size)
+            t_texels -= size * np.floor(t_texels * inv_size)
+            # Level l starts at row 2 S (1 - 2^-l) + 2 pad l of the atlas (build_atlas stacks levels),
+            # so map_y = 2 S + pad - 0.5 + 2 pad l + (t - 2 S) 2^-l: no per-pixel table lookups.
+            level_rows = (level0 * (2 * atlas.pad) + (2 * atlas.size)).astype(np.float32) + np.float32(atlas.pad - 0.5)
+            map_x0 = np.ldexp(s_texels, -level0).astype(np.float32, copy=False)
+            map_y0 = np.ldexp(t_texels - np.float32(2 * atlas.size), -level0).astype(np.float32, copy=False)
+            samples = []
+            for scale, rows in ((np.float32(1.0), level_rows), (np.float32(0.5), level_rows + np.float32(2 * atlas.pad))):
+                # The next level (l + 1) beyond the last one is sampled with weight fraction = 0 only.
+                map_x, map_y = texture_x + scale * map_x0, rows + scale * map_y0
+                samples.append(cv2.remap(atlas.image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+            surface = samples[0] + fraction * (samples[1] - samples[0])
+            surface *= gain
+            road = np.flatnonzero(hit & (road_flag > 0))
+            if road.size:
+                along = visible.coord_a.ravel()[road] + road_along.ravel()[road]
+                surface.ravel()[road] = _paint_markings(surface.ravel()[road], along, visible.coord_b.ravel()[road],
+                                                        road_width.ravel()[road], pixel_m.ravel()[road], footprint_m.ravel()[road])
+            image = surface
+        sky = ~hit
+        if sky.any():  # brighter towards the horizon
+            up = R_world_camera[2, :].astype(np.float32)  # world z of the rays
+            elevation = np.clip(rays.rays_planes[0][sky] * up[0] + rays.rays_planes[1][sky] * up[1] + rays.rays_planes[2][sky] * up[2], 0.0, 1.0)
+            image[sky] = options.sky_horizon + (options.sky_zenith - options.sky_horizon) * np.sqrt(elevation)
+        image[~rays.valid] = 0.0
+        return image, visible.depth
+
+    def render(self, camera: Camera, T_world_camera: np.ndarray, extra_quads: Sequence[Quad] = ()) -> np.ndarray:
+        """uint8 grey image (H, W) of the scene seen by ``camera`` at ``T_world_camera``."""
+        return to_uint8(self.render_float(camera, T_world_camera, extra_quads))
+
+
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    return np.clip(np.round(image), 0, 255).astype(np.uint8)
+
+
+def render_image(scene: Scene, camera: Camera, T_world_camera: np.ndarray,
+                 textures: TextureAtlas | dict[str, np.ndarray] | None = None,
+                 options: RenderOptions | None = None) -> np.ndarray:
+    """One uint8 image of ``scene`` (convenience; use :class:`Renderer` for many frames)."""
+    return Renderer(scene, textures, options).render(camera, T_world_camera)
+
+
+# ---------------------------------------------------------------------- realism effects
+def exposure_gain(options: RenderOptions, timestamp: float, camera_index: int) -> float:
+    """Smooth exposure/gain change per camera: ``1 + 1.5 * amplitude * mean of three sines`` with
+    random periods (2-12 s) and phases, a deterministic function of time (any frame order)."""
+    if options.exposure_variation <= 0:
+        return 1.0
+    rng = np.random.default_rng([options.seed, 7919, camera_index])
+    periods = rng.uniform(2.0, 12.0, 3)
+    phases = rng.uniform(0, 2 * np.pi, 3)
+    return float(1.0 + options.exposure_variation * np.mean(np.sin(2 * np.pi * timestamp / periods + phases)) * 1.5)
+
+
+def apply_sensor_effects(image: np.ndarray, options: RenderOptions, timestamp: float, frame: int, camera_index: int) -> np.ndarray:
+    """Exposure gain and Gaussian sensor noise (seeded by frame and camera); returns uint8."""
+    image = image * np.float32(exposure_gain(options, timestamp, camera_index))
+    if options.sensor_noise_sigma > 0:
+        rng = np.random.default_rng([options.seed, frame, camera_index])
+        image = image + rng.normal(0.0, options.sensor_noise_sigma, image.shape).astype(np.float32)
+    return to_uint8(image)
+
+
+def interpolate_pose(T_a: np.ndarray, T_b: np.ndarray, fraction: float) -> np.ndarray:
+    """Pose a fraction of the way from ``T_a`` to ``T_b`` (linear translation, geodesic rotation)."""
+    from scipy.spatial.transform import Rotation
+
+    delta = Rotation.from_matrix(T_a[:3, :3].T @ T_b[:3, :3]).as_rotvec()
+    pose = np.eye(4)
+    pose[:3, :3] = T_a[:3, :3] @ Rotation.from_rotvec(fraction * delta).as_matrix()
+    pose[:3, 3] = (1 - fraction) * T_a[:3, 3] + fraction * T_b[:3, 3]
+    return pose
+
+
+def vehicle_quads(T_world_vehicle: np.ndarray, length: float = 4.5, width: float = 1.8, height: float = 1.5,
+                  texture: str = "metal") -> list[Quad]:
+    """A box (4 sides and the roof) at ``T_world_vehicle`` (origin at the box's ground centre)."""
+    R, p = T_world_vehicle[:3, :3], T_world_vehicle[:3, 3]
+    x, y, z = R[:, 0], R[:, 1], R[:, 2]
+    rear_right = p - 0.5 * length * x - 0.5 * width * y
+    front_right = p + 0.5 * length * x - 0.5 * width * y
+    rear_left = p - 0.5 * length * x + 0.5 * width * y
+    top = rear_right + height * z
+    return [
+        Quad(rear_right, x, z, length, height, "box", texture, 2.0),
+        Quad(rear_left, x, z, length, height, "box", texture, 2.0),
+        Quad(rear_right, y, z, width, height, "box", texture, 2.0),
+        Quad(front_right, y, z, width, height, "box", texture, 2.0),
+        Quad(top, x, y, length, width, "box", texture, 2.0),
+    ]
+
+
+def vehicle_pose(trajectory: Any, frame_time: float, options: RenderOptions) -> np.ndarray:
+    """Pose of the moving vehicle: on the tractor's path, ``vehicle_lead_m`` ahead at t = 0, moving at
+    ``vehicle_speed_mps`` along it and ``vehicle_lateral_m`` to the side (heading flipped if oncoming)."""
+    positions = trajectory.T_world_tractor[:, :3, 3]
+    steps = np.linalg.norm(np.diff(positions[:, :2], axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
+    s = options.vehicle_lead_m + options.vehicle_speed_mps * frame_time
+    index = int(np.clip(np.searchsorted(arc, s) - 1, 0, len(arc) - 1))
+    T = trajectory.T_world_tractor[index].copy()
+    beyond = s - arc[index]  # straight extrapolation past the ends of the tractor's path
+    T[:3, 3] = positions[index] + beyond * T[:3, 0] + T[:3, 1] * options.vehicle_lateral_m
+    T[2, 3] = 0.0
+    if options.vehicle_speed_mps < 0:
+        T[:3, :2] = -T[:3, :2]
+    return T
+
+
+# ---------------------------------------------------------------------- sequences
+_WORKER: dict[str, Any] = {}
+
+
+def _render_frame(renderer: Renderer, rig: Rig, trajectory: Any, frame: int, out_dir: Path) -> None:
+    options = renderer.options
+    timestamp = float(trajectory.timestamps[frame])
+    next_frame = min(frame + 1, len(trajectory) - 1)
+    for camera_index, camera in enumerate(rig.cameras):
+        poses = trajectory.pose(camera.body)
+        if options.motion_blur_samples > 1 and options.exposure_time_s > 0 and next_frame != frame:
+            interval = float(trajectory.timestamps[next_frame] - timestamp)
+            fractions = (np.arange(options.motion_blur_samples) + 0.5) / options.motion_blur_samples * min(options.exposure_time_s / interval, 1.0)
+        else:
+            fractions = np.zeros(1)
+        accumulated = None
+        for fraction in fractions:
+            T_world_body = interpolate_pose(poses[frame], poses[next_frame], float(fraction)) if fraction > 0 else poses[frame]
+            extra = vehicle_quads(vehicle_pose(trajectory, timestamp, options)) if options.moving_vehicle else []
+            image = renderer.render_float(camera, T_world_body @ camera.T_body_camera, extra)
+            accumulated = image if accumulated is None else accumulated + image
+        image = accumulated / len(fractions)
+        output = apply_sensor_effects(image, options, timestamp, frame, camera_index)
+        path = out_dir / "images" / camera.name / f"{frame:06d}.png"
+        cv2.imwrite(str(path), output, [cv2.IMWRITE_PNG_COMPRESSION, options.png_compression])
+
+
+def _worker_init(renderer: Renderer, rig: Rig, trajectory: Any, out_dir: Path) -> None:
+    cv2.setNumThreads(1)
+    _WORKER.update(renderer=renderer, rig=rig, trajectory=trajectory, out_dir=out_dir)
+
+
+def _worker_frame(frame: int) -> int:
+    _render_frame(_WORKER["renderer"], _WORKER["rig"], _WORKER["trajectory"], frame, _WORKER["out_dir"])
+    return frame
+
+
+def image_paths(rig: Rig, frame: int) -> list[str]:
+    """Relative image paths of one frame, in rig camera order (``images/<camera>/<frame:06d>.png``)."""
+    return [f"images/{camera.name}/{frame:06d}.png" for camera in rig.cameras]
+
+
+def render_sequence(out_dir: str | Path, rig: Rig, trajectory: Any, scene: Scene,
+                    options: RenderOptions | None = None, progress: bool = True,
+                    renderer: Renderer | None = None) -> list[list[str]]:
+    """Render every camera at every frame of ``trajectory`` into ``out_dir/images/<camera>/<frame:06d>.png``.
+
+    ``trajectory`` needs ``timestamps`` (F,) and ``pose(body)`` -> (F, 4, 4) (``kinematics.Trajectory``).
+    Frames are spread over ``options.processes`` worker processes (spawned: forking a process whose
+    OpenCV thread pool has run deadlocks the children). Returns the relative image
+    paths per frame (rig camera order), as ``frames.csv`` lists them.
+    """
+    options = options or RenderOptions()
+    out_dir = Path(out_dir)
+    for camera in rig.cameras:
+        (out_dir / "images" / camera.name).mkdir(parents=True, exist_ok=True)
+    renderer = renderer or Renderer(scene, None, options)
+    for camera in rig.cameras:  # precompute rays once (the workers receive them with the renderer)
+        renderer.rays_of(camera)
+    frames = range(len(trajectory))
+    processes = max(1, min(options.processes, os.cpu_count() or 1, len(frames)))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(frames), desc="render", unit="frame")
+    if processes == 1:
+        for frame in frames:
+            _render_frame(renderer, rig, trajectory, frame, out_dir)
+            if bar is not None:
+                bar.update(1)
+    else:
+        context = multiprocessing.get_context("spawn")
+        with context.Pool(processes, initializer=_worker_init, initargs=(renderer, rig, trajectory, out_dir)) as pool:
+            for _ in pool.imap_unordered(_worker_frame, frames, chunksize=4):
+                if bar is not None:
+                    bar.update(1)
+    if bar is not None:
+        bar.close()
+    return [image_paths(rig, frame) for frame in frames]

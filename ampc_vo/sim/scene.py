@@ -1,0 +1,243 @@
+"""The 3D world the simulated cameras look at: textured planar rectangles (DESIGN section 6).
+
+One description serves two consumers, so that bearing measurements and rendered images agree:
+``simulation`` samples landmarks on the quads' surfaces and ``render`` ray-casts the same quads with
+their textures.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ampc_vo.io.groundtruth import Trajectory
+    from ampc_vo.sim.config import SceneConfig
+
+QUAD_KINDS = ("road", "ground", "facade", "box", "pole", "marker")
+
+
+@dataclass(frozen=True, eq=False)
+class Quad:
+    """A planar textured rectangle in world coordinates.
+
+    Its points are ``origin + a * axis_u + b * axis_v`` for ``a`` in [0, width] and ``b`` in
+    [0, height] (metres); ``axis_u`` and ``axis_v`` are orthonormal. Texture coordinates are
+    ``(a, b) / texture_scale`` (texture repeats every ``texture_scale`` metres).
+    """
+
+    origin: np.ndarray
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+    width: float
+    height: float
+    kind: str
+    texture: str
+    texture_scale: float = 4.0
+
+    @property
+    def normal(self) -> np.ndarray:
+        return np.cross(self.axis_u, self.axis_v)
+
+    def points(self, coordinates: np.ndarray) -> np.ndarray:
+        """World points (N, 3) at surface coordinates (N, 2) = (a, b) in metres."""
+        coordinates = np.asarray(coordinates, dtype=float)
+        return self.origin + coordinates[:, :1] * self.axis_u + coordinates[:, 1:2] * self.axis_v
+
+
+@dataclass(frozen=True)
+class Scene:
+    """All quads of a simulated world."""
+
+    quads: tuple[Quad, ...]
+
+
+# ---------------------------------------------------------------------- procedural scene along a route
+# Body-frame x of points on each body's centre line that sweep the road (hitch at 0): tractor nose,
+# axle and hitch; trailer hitch, middle and rear. The clearance corridor is measured from them.
+TRACTOR_FOOTPRINT_X = (3.5, 1.5, 0.0)
+TRAILER_FOOTPRINT_X = (0.0, -4.5, -9.0, -14.0)
+FACADE_TEXTURES = ("brick", "concrete", "wood", "facade")
+WALL_TEXTURES = ("concrete", "brick")
+OBJECT_TEXTURES = ("wood", "metal", "concrete")
+_ROAD_STEP_M = 2.0
+_ROAD_OVERLAP_M = 0.6
+# the asphalt is the road surface at z = 0 (the body origin's height: ground truth, the
+# ground-plane scale and KITTI agree on it); shoulders and grass lie slightly below it so the
+# overlapping quads do not z-fight
+_ROAD_Z = 0.0
+_SHOULDER_Z = -0.01
+_GRASS_Z = -0.02
+_UP = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class Centerline:
+    """The road's centre line, resampled every ~2 m: points (K, 3), unit tangents (K, 3), left
+    normals (K, 3) and arc length (K,). It extends the tractor's path straight before its start and
+    after its end, so the rear camera at the start and the front camera at the end see a street."""
+
+    points: np.ndarray
+    tangents: np.ndarray
+    normals: np.ndarray
+    arc_length: np.ndarray
+
+
+def route_centerline(T_world_tractor: np.ndarray, extension_m: float, step_m: float = _ROAD_STEP_M) -> Centerline:
+    """Centre line through the tractor hitch positions (F, 4, 4 poses) with straight extensions."""
+    positions = T_world_tractor[:, :3, 3].copy()
+    positions[:, 2] = 0.0
+    start_heading = T_world_tractor[0, :3, 0] * np.array([1.0, 1.0, 0.0])
+    end_heading = T_world_tractor[-1, :3, 0] * np.array([1.0, 1.0, 0.0])
+    start_heading /= np.linalg.norm(start_heading)
+    end_heading /= np.linalg.norm(end_heading)
+    offsets = np.arange(1.0, extension_m + 1e-9, 1.0)
+    before = positions[0] - offsets[::-1, None] * start_heading
+    after = positions[-1] + offsets[:, None] * end_heading
+    polyline = np.concatenate([before, positions, after])
+    steps = np.linalg.norm(np.diff(polyline, axis=0), axis=1)
+    keep = np.concatenate([[True], steps > 1e-6])
+    polyline = polyline[keep]
+    cumulative = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(polyline, axis=0), axis=1))])
+    samples = np.linspace(0.0, cumulative[-1], max(int(np.ceil(cumulative[-1] / step_m)), 1) + 1)
+    points = np.stack([np.interp(samples, cumulative, polyline[:, axis]) for axis in range(3)], axis=1)
+    tangents = np.gradient(points, axis=0)
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    normals = np.cross(_UP, tangents)
+    return Centerline(points, tangents, normals, samples - extension_m)
+
+
+def swept_path_points(T_world_tractor: np.ndarray, T_world_trailer: np.ndarray, centerline: Centerline | None = None) -> np.ndarray:
+    """2-D points (N, 2) on the centre lines of both bodies over the whole trajectory (and the
+    extended road, if given): everything within the clearance of them is the vehicle's corridor."""
+    parts = []
+    for poses, footprint in ((T_world_tractor, TRACTOR_FOOTPRINT_X), (T_world_trailer, TRAILER_FOOTPRINT_X)):
+        for body_x in footprint:
+            parts.append(poses[:, :2, 3] + body_x * poses[:, :2, 0])
+    if centerline is not None:
+        parts.append(centerline.points[:, :2])
+    # Frames are at most ~2 m apart; build_scene adds a 0.5 m margin to the clearance for the gaps.
+    return np.concatenate(parts)
+
+
+def _strip_quads(centerline: Centerline, lateral_from: float, lateral_to: float, z: float, kind: str, texture: str, texture_scale: float) -> list[Quad]:
+    """Rectangles covering the band ``lateral_from..lateral_to`` (m, left positive) along the centre line."""
+    quads = []
+    for index in range(len(centerline.points) - 1):
+        start, stop = centerline.points[index], centerline.points[index + 1]
+        chord = stop - start
+        length = float(np.linalg.norm(chord))
+        if length < 1e-6:
+            continue
+        axis_u = chord / length
+        axis_v = np.cross(_UP, axis_u)
+        origin = start - _ROAD_OVERLAP_M * axis_u + lateral_from * axis_v + np.array([0.0, 0.0, z])
+        quads.append(Quad(origin, axis_u, axis_v, length + 2.0 * _ROAD_OVERLAP_M, lateral_to - lateral_from, kind, texture, texture_scale))
+    return quads
+
+
+def _clear(points_2d: np.ndarray, tree, clearance: float) -> bool:
+    distances, _ = tree.query(points_2d)
+    return bool(np.min(distances) >= clearance)
+
+
+def _segment_samples(start: np.ndarray, stop: np.ndarray, spacing: float = 0.5) -> np.ndarray:
+    count = max(int(np.ceil(np.linalg.norm(stop - start) / spacing)), 1) + 1
+    return start[None, :2] + np.linspace(0.0, 1.0, count)[:, None] * (stop - start)[None, :2]
+
+
+def box_quads(center: np.ndarray, yaw: float, size: tuple[float, float, float], kind: str, texture: str, texture_scale: float = 2.0) -> list[Quad]:
+    """Four outward-facing sides and the top of an upright box standing on z = 0."""
+    length, width, height = size
+    x_axis = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    y_axis = np.cross(_UP, x_axis)
+    base = np.array([center[0], center[1], 0.0])
+    quads = []
+    for outward, half_normal, side in ((x_axis, length / 2, width), (-x_axis, length / 2, width), (y_axis, width / 2, length), (-y_axis, width / 2, length)):
+        axis_u = np.cross(_UP, outward)  # so that axis_u x up = outward normal
+        origin = base + half_normal * outward - (side / 2) * axis_u
+        quads.append(Quad(origin, axis_u, _UP.copy(), side, height, kind, texture, texture_scale))
+    top_origin = base - (length / 2) * x_axis - (width / 2) * y_axis + height * _UP
+    quads.append(Quad(top_origin, x_axis, y_axis, length, width, kind, texture, texture_scale))
+    return quads
+
+
+def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "SceneConfig | None" = None) -> Scene:
+    """Procedural world along a trajectory (``kinematics.Trajectory``) for rendering and landmarks.
+
+    Quads: one large grass ``ground`` plane (2 cm below the road), gravel shoulders and the asphalt ``road`` strip
+    (slightly raised, so the renderer's nearest hit shows them), vertical ``facade`` quads (building
+    fronts and low walls) on both sides at 5-25 m, facing the road, and free-standing ``box`` and
+    ``pole`` objects. The road is extended straight before the start and after the end
+    (``config.extension_m``) and lined with facades there too. No vertical quad comes closer than
+    ``config.clearance`` (2-D distance) to the swept centre lines of both bodies or the road's
+    centre line, so nothing intersects the vehicle's path. ``config`` is a
+    :class:`ampc_vo.sim.config.SceneConfig` (defaults if ``None``).
+    """
+    from scipy.spatial import cKDTree
+
+    from ampc_vo.sim.config import SceneConfig
+
+    config = SceneConfig() if config is None else config
+    centerline = route_centerline(trajectory.T_world_tractor, config.extension_m)
+    corridor = cKDTree(swept_path_points(trajectory.T_world_tractor, trajectory.T_world_trailer, centerline))
+    clearance = config.clearance + 0.5  # margin for the sampling of the corridor points
+    half_road = config.road_width / 2.0
+
+    low, high = centerline.points[:, :2].min(axis=0) - config.ground_margin_m, centerline.points[:, :2].max(axis=0) + config.ground_margin_m
+    quads: list[Quad] = [Quad(np.array([low[0], low[1], _GRASS_Z]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), float(high[0] - low[0]), float(high[1] - low[1]), "ground", "grass", 4.0)]
+    quads += _strip_quads(centerline, -half_road, half_road, _ROAD_Z, "road", "asphalt", 4.0)
+    quads += _strip_quads(centerline, half_road, half_road + config.shoulder_width, _SHOULDER_Z, "ground", "gravel", 3.0)
+    quads += _strip_quads(centerline, -half_road - config.shoulder_width, -half_road, _SHOULDER_Z, "ground", "gravel", 3.0)
+
+    total = float(centerline.arc_length[-1] - centerline.arc_length[0])
+    arc = centerline.arc_length - centerline.arc_length[0]
+
+    def frame_at(s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        index = int(np.clip(np.searchsorted(arc, s), 0, len(arc) - 1))
+        return centerline.points[index], centerline.tangents[index], centerline.normals[index]
+
+    facade_count = object_count = 0
+    for side in (1.0, -1.0):
+        s = float(rng.uniform(0.0, 4.0))
+        while s < total:
+            length = float(rng.uniform(*config.facade_length))
+            distance = float(rng.uniform(*config.facade_distance))
+            is_wall = rng.random() < 0.2
+            height = float(rng.uniform(1.5, 3.0)) if is_wall else float(rng.uniform(*config.facade_height))
+            point, tangent, normal = frame_at(s + length / 2.0)
+            axis_u = tangent if side > 0 else -tangent  # normal axis_u x up faces the road
+            center = point + side * distance * normal
+            start, stop = center - axis_u * length / 2.0, center + axis_u * length / 2.0
+            if _clear(_segment_samples(start, stop), corridor, clearance):
+                texture = str(rng.choice(WALL_TEXTURES if is_wall else FACADE_TEXTURES))
+                quads.append(Quad(start.copy(), axis_u.copy(), _UP.copy(), length, height, "facade", texture, 3.0 if is_wall else 4.0))
+                facade_count += 1
+                s += length + float(rng.uniform(*config.facade_gap))
+            else:
+                s += 2.0
+        s = float(rng.uniform(0.0, config.object_spacing))
+        while s < total and config.object_spacing > 0.0:
+            point, tangent, normal = frame_at(s)
+            distance = float(rng.uniform(config.clearance + 1.5, max(config.clearance + 2.0, config.facade_distance[0] + 2.0)))
+            center = point + side * distance * normal
+            if rng.random() < 0.5:
+                size = (0.25, 0.25, float(rng.uniform(3.0, 6.0)))
+                kind, texture = "pole", "metal"
+            else:
+                size = (float(rng.uniform(1.0, 3.0)), float(rng.uniform(1.0, 2.5)), float(rng.uniform(0.8, 2.5)))
+                kind, texture = "box", str(rng.choice(OBJECT_TEXTURES))
+            yaw = float(np.arctan2(tangent[1], tangent[0]) + rng.uniform(-0.5, 0.5))
+            local = np.array([[dx * size[0], dy * size[1]] for dx in (-0.5, 0.5) for dy in (-0.5, 0.5)])
+            rotation = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+            corners = center[:2] + local @ rotation.T
+            if _clear(corners, corridor, clearance):
+                quads += box_quads(center, yaw, size, kind, texture)
+                object_count += 1
+            s += config.object_spacing * float(rng.uniform(0.7, 1.3))
+    logger.info("scene: %d quads (%d facades, %d objects) along %.0f m", len(quads), facade_count, object_count, total)
+    return Scene(tuple(quads))

@@ -1,0 +1,391 @@
+"""Simulated landmarks and feature tracks with ground truth (DESIGN section 6; issue 2).
+
+Pipeline of :func:`simulate_dataset`: route config -> kinematics (``kinematics.simulate_kinematics``)
+-> procedural scene (``scene.build_scene``) -> landmarks sampled **on the scene's quads** (so that
+rendered images and bearing measurements show the same world) -> per camera and frame visibility
+-> tracks with pixel noise and outliers -> dataset folder (``ampc_vo.io.folder``) and, when the
+renderer is available, images.
+
+Visibility of a landmark in a camera at a frame (all vectorised over landmarks):
+
+1. within ``max_range_m`` of the camera centre and at depth >= ``min_range_m``;
+2. ``Camera.project`` valid (in front, inside the image);
+3. **not occluded**: an exact ray-versus-rectangle test of the segment camera -> landmark against
+   every occluding quad (``facade``, ``box``, ``pole``; the road and the ground lie on the ground
+   plane and cannot hide anything seen from above it) within range. We chose the exact ray test
+   over a z-buffer because it is simple, has no resolution artefacts, and costs only
+   O(candidates x nearby occluders) per camera and frame; it is evaluated lazily, only for the
+   continuing tracks and for random batches of new candidates until the track cap is filled.
+
+Tracks: each camera keeps the landmarks it tracked in the previous frame while they stay visible
+(``track_id`` unchanged); free slots up to ``max_tracks_per_camera`` are filled with newly visible
+landmarks, emptiest cells of an 8 x 6 image grid first (like a tracker's grid replenishment;
+random within a cell), each given a new track id (a landmark re-acquired after a gap gets a new
+id, as a real tracker would). ``track_id`` values are unique over all cameras. In each camera and
+frame ``round(outlier_fraction * K)`` of the K tracks are outliers: their pixel is replaced by a
+uniformly random pixel (the track id persists; ``is_outlier`` marks them). Inliers get Gaussian
+pixel noise of ``pixel_noise_px``.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ampc_vo.errors import ConfigError, OutputError
+from ampc_vo.geometry import invert_pose
+from ampc_vo.io.groundtruth import Trajectory
+from ampc_vo.sim.kinematics import simulate_kinematics
+from ampc_vo.io.measurements import MEASUREMENTS_FILE, Measurements, load_measurements, save_measurements
+from ampc_vo.rig import Rig
+from ampc_vo.sim.scene import Scene, build_scene
+from ampc_vo.sim.config import SceneConfig, SimulationConfig, load_sim_config
+
+__all__ = [
+    "Measurements", "load_measurements", "save_measurements", "MEASUREMENTS_FILE",
+    "LandmarkSet", "sample_landmarks", "occluded", "landmarks_in_view", "occluders_in_view", "visible_landmarks",
+    "simulate_measurements",
+    "SimulationResult", "simulate", "simulate_dataset",
+]
+
+LOGGER = logging.getLogger(__name__)
+OCCLUDER_KINDS = ("facade", "box", "pole")
+_SURFACE_KINDS = ("facade", "box", "pole")
+
+
+@dataclass(frozen=True)
+class LandmarkSet:
+    """World points (L, 3) on the scene's surfaces and the index of the quad each lies on (L,)."""
+
+    points: np.ndarray
+    quad_index: np.ndarray
+
+
+def sample_landmarks(scene: Scene, trajectory: Trajectory, config: SceneConfig, rng: np.random.Generator) -> LandmarkSet:
+    """Sample landmarks on the scene's quads.
+
+    Vertical surfaces (facades, boxes, poles) get ``landmark_density_facade`` points per m^2,
+    uniformly over each quad. Road, shoulders and grass get ``landmark_density_ground`` per m^2,
+    but only on the parts of those quads within ``ground_landmark_band_m`` of the road's centre
+    line (the large grass plane would otherwise waste landmarks far from the route); each ground
+    point lies exactly on the topmost ground-level quad at its position (road over shoulder over
+    grass), so it matches the rendered surface.
+    """
+    from ampc_vo.sim.scene import route_centerline
+
+    points, quad_index = [], []
+    for index, quad in enumerate(scene.quads):
+        if quad.kind not in _SURFACE_KINDS:
+            continue
+        count = rng.poisson(config.landmark_density_facade * quad.width * quad.height)
+        if count == 0:
+            continue
+        coordinates = rng.uniform(0.0, 1.0, size=(count, 2)) * np.array([quad.width, quad.height])
+        points.append(quad.points(coordinates))
+        quad_index.append(np.full(count, index))
+
+    centerline = route_centerline(trajectory.T_world_tractor, config.extension_m)
+    band = config.ground_landmark_band_m
+    length = float(centerline.arc_length[-1] - centerline.arc_length[0])
+    count = rng.poisson(config.landmark_density_ground * 2.0 * band * max(length, 1.0))
+    at = rng.integers(0, len(centerline.points), size=count)
+    lateral = rng.uniform(-band, band, size=count)
+    along = rng.uniform(-1.0, 1.0, size=count)
+    ground = centerline.points[at] + lateral[:, None] * centerline.normals[at] + along[:, None] * centerline.tangents[at]
+    ground_index = _ground_quad_at(scene, ground[:, :2])
+    keep = ground_index >= 0
+    ground = ground[keep]
+    ground_index = ground_index[keep]
+    ground[:, 2] = np.array([scene.quads[index].origin[2] for index in ground_index])
+    points.append(ground)
+    quad_index.append(ground_index)
+    return LandmarkSet(np.concatenate(points) if points else np.zeros((0, 3)), np.concatenate(quad_index).astype(np.int64) if quad_index else np.zeros(0, np.int64))
+
+
+def _ground_quad_at(scene: Scene, xy: np.ndarray) -> np.ndarray:
+    """Index of the highest horizontal road/ground quad containing each 2-D point (-1 if none)."""
+    best = np.full(len(xy), -1, dtype=np.int64)
+    best_z = np.full(len(xy), -np.inf)
+    for index, quad in enumerate(scene.quads):
+        if quad.kind not in ("road", "ground") or abs(quad.normal[2]) < 0.99:
+            continue
+        relative = xy - quad.origin[:2]
+        a = relative @ quad.axis_u[:2]
+        b = relative @ quad.axis_v[:2]
+        inside = (a >= 0.0) & (a <= quad.width) & (b >= 0.0) & (b <= quad.height) & (quad.origin[2] > best_z)
+        best[inside] = index
+        best_z[inside] = quad.origin[2]
+    return best
+
+
+@dataclass(frozen=True)
+class _Occluders:
+    """Occluding quads stacked as arrays for the vectorised ray test."""
+
+    origin: np.ndarray   # (Q, 3)
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+    normal: np.ndarray
+    size: np.ndarray     # (Q, 2) width, height
+    center: np.ndarray   # (Q, 3)
+    radius: np.ndarray   # (Q,) half diagonal
+    quad_index: np.ndarray
+
+    @staticmethod
+    def from_scene(scene: Scene) -> "_Occluders":
+        selected = [index for index, quad in enumerate(scene.quads) if quad.kind in OCCLUDER_KINDS]
+        quads = [scene.quads[index] for index in selected]
+        if not quads:
+            empty = np.zeros((0, 3))
+            return _Occluders(empty, empty, empty, empty, np.zeros((0, 2)), empty, np.zeros(0), np.zeros(0, np.int64))
+        origin = np.array([quad.origin for quad in quads])
+        axis_u = np.array([quad.axis_u for quad in quads])
+        axis_v = np.array([quad.axis_v for quad in quads])
+        size = np.array([[quad.width, quad.height] for quad in quads])
+        center = origin + 0.5 * size[:, :1] * axis_u + 0.5 * size[:, 1:] * axis_v
+        return _Occluders(origin, axis_u, axis_v, np.cross(axis_u, axis_v), size, center, 0.5 * np.hypot(size[:, 0], size[:, 1]), np.array(selected))
+
+
+def occluded(camera_center: np.ndarray, points: np.ndarray, occluders: _Occluders, own_quad: np.ndarray | None = None) -> np.ndarray:
+    """True for points (N, 3) whose segment from ``camera_center`` crosses an occluding quad.
+
+    Ray ``c + t (p - c)``; plane hit ``t = n.(o - c) / n.(p - c)``; occluded if some quad has
+    ``1e-6 < t < 1 - 1e-6`` with the hit inside the rectangle. A point's own quad (``own_quad``,
+    the scene quad index) is skipped. Vectorised over (N points x Q quads).
+    """
+    if len(points) == 0 or len(occluders.origin) == 0:
+        return np.zeros(len(points), dtype=bool)
+    direction = points - camera_center                                   # (N, 3)
+    denominator = direction @ occluders.normal.T                          # (N, Q)
+    numerator = np.einsum("qa,qa->q", occluders.normal, occluders.origin - camera_center)  # (Q,)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = numerator[None, :] / denominator
+    candidate = (np.abs(denominator) > 1e-12) & (t > 1e-6) & (t < 1.0 - 1e-6)
+    if own_quad is not None:
+        candidate &= own_quad[:, None] != occluders.quad_index[None, :]
+    rows, columns = np.nonzero(candidate)
+    if len(rows) == 0:
+        return np.zeros(len(points), dtype=bool)
+    hit = camera_center + t[rows, columns, None] * direction[rows]
+    relative = hit - occluders.origin[columns]
+    a = np.einsum("ka,ka->k", relative, occluders.axis_u[columns])
+    b = np.einsum("ka,ka->k", relative, occluders.axis_v[columns])
+    inside = (a >= 0.0) & (a <= occluders.size[columns, 0]) & (b >= 0.0) & (b <= occluders.size[columns, 1])
+    result = np.zeros(len(points), dtype=bool)
+    result[rows[inside]] = True
+    return result
+
+
+def landmarks_in_view(
+    camera, T_world_camera: np.ndarray, landmarks: LandmarkSet, landmark_tree: cKDTree, max_range: float, min_range: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Ids (K,) and noise-free pixels (K, 2) of the landmarks in range and in the image (steps 1-2
+    of the module docstring; occlusion is not checked)."""
+    center = T_world_camera[:3, 3]
+    nearby = np.asarray(landmark_tree.query_ball_point(center, max_range), dtype=np.int64)
+    if len(nearby) == 0:
+        return np.zeros(0, np.int64), np.zeros((0, 2))
+    nearby.sort()
+    T_camera_world = invert_pose(T_world_camera)
+    points_camera = landmarks.points[nearby] @ T_camera_world[:3, :3].T + T_camera_world[:3, 3]
+    pixels, valid = camera.project(points_camera)
+    valid &= points_camera[:, 2] >= min_range
+    return nearby[valid], pixels[valid]
+
+
+def occluders_in_view(occluders: _Occluders, T_world_camera: np.ndarray, max_range: float) -> _Occluders:
+    """The occluders that can lie between the camera and a landmark within ``max_range``: near
+    enough and not entirely behind the camera (bounding-sphere tests)."""
+    center = T_world_camera[:3, 3]
+    depth = (occluders.center - center) @ T_world_camera[:3, 2]
+    keep = (np.linalg.norm(occluders.center - center, axis=1) <= max_range + occluders.radius) & (depth > -occluders.radius)
+    return _Occluders(*(getattr(occluders, name)[keep] for name in ("origin", "axis_u", "axis_v", "normal", "size", "center", "radius", "quad_index")))
+
+
+def visible_landmarks(
+    camera, T_world_camera: np.ndarray, landmarks: LandmarkSet, landmark_tree: cKDTree, occluders: _Occluders,
+    max_range: float, min_range: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Ids (K,) and noise-free pixels (K, 2) of all the landmarks one camera sees (module docstring)."""
+    ids, pixels = landmarks_in_view(camera, T_world_camera, landmarks, landmark_tree, max_range, min_range)
+    nearby = occluders_in_view(occluders, T_world_camera, max_range)
+    hidden = occluded(T_world_camera[:3, 3], landmarks.points[ids], nearby, landmarks.quad_index[ids])
+    return ids[~hidden], pixels[~hidden]
+
+
+GRID_COLUMNS, GRID_ROWS = 8, 6  # image grid for spreading new tracks, like a tracker's replenishment
+
+
+def _spread_order(pixels: np.ndarray, candidates: np.ndarray, occupied_cells: np.ndarray, image_size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+    """``candidates`` (indices into ``pixels``) ordered so that new tracks fill the emptiest cells
+    of a ``GRID_COLUMNS`` x ``GRID_ROWS`` image grid first (random order within a cell).
+    ``occupied_cells`` holds the cell index of every already kept track."""
+    width, height = image_size
+    def cell_of(points: np.ndarray) -> np.ndarray:
+        column = np.clip((points[:, 0] + 0.5) * GRID_COLUMNS // width, 0, GRID_COLUMNS - 1).astype(np.int64)
+        row = np.clip((points[:, 1] + 0.5) * GRID_ROWS // height, 0, GRID_ROWS - 1).astype(np.int64)
+        return row * GRID_COLUMNS + column
+
+    shuffled = rng.permutation(candidates)
+    cells = cell_of(pixels[shuffled])
+    by_cell = np.argsort(cells, kind="stable")
+    sorted_cells = cells[by_cell]
+    first_in_cell = np.searchsorted(sorted_cells, sorted_cells, side="left")
+    rank = np.empty(len(shuffled), np.int64)
+    rank[by_cell] = np.arange(len(shuffled)) - first_in_cell           # k-th candidate of its cell
+    rank += np.bincount(occupied_cells, minlength=GRID_COLUMNS * GRID_ROWS)[cells]
+    return shuffled[np.argsort(rank, kind="stable")]
+
+
+def _select_tracks(
+    ids: np.ndarray, pixels: np.ndarray, previous_ids: np.ndarray, capacity: int, is_hidden, image_size: tuple[int, int],
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Landmarks to track this frame: the unoccluded continuing ones, then unoccluded new ones up
+    to ``capacity``, spread over the image (:func:`_spread_order`). Occlusion
+    (``is_hidden(indices) -> bool array``) is only evaluated for candidates that may be kept, in
+    batches: the result equals testing all first, at a fraction of the cost.
+    Returns ``(ids, pixels, count_continuing)`` with the continuing tracks first."""
+    was_tracked = np.isin(ids, previous_ids)
+    continuing = np.flatnonzero(was_tracked)
+    continuing = continuing[~is_hidden(continuing)]
+    slots = max(capacity - len(continuing), 0)
+    chosen: list[np.ndarray] = []
+    if slots:
+        width, height = image_size
+        occupied = (np.clip((pixels[continuing, 1] + 0.5) * GRID_ROWS // height, 0, GRID_ROWS - 1) * GRID_COLUMNS
+                    + np.clip((pixels[continuing, 0] + 0.5) * GRID_COLUMNS // width, 0, GRID_COLUMNS - 1)).astype(np.int64)
+        fresh = _spread_order(pixels, np.flatnonzero(~was_tracked), occupied, image_size, rng)
+        found = start = 0
+        while found < slots and start < len(fresh):
+            batch = fresh[start:start + max(2 * (slots - found), 32)]
+            start += len(batch)
+            visible = batch[~is_hidden(batch)][: slots - found]
+            chosen.append(visible)
+            found += len(visible)
+    keep = np.concatenate([continuing, np.sort(np.concatenate(chosen))]) if chosen else continuing
+    return ids[keep], pixels[keep], len(continuing)
+
+
+def simulate_measurements(
+    trajectory: Trajectory, rig: Rig, landmarks: LandmarkSet, scene: Scene, config: SimulationConfig, rng: np.random.Generator
+) -> Measurements:
+    """Tracks of every camera over the trajectory (module docstring)."""
+    tree = cKDTree(landmarks.points)
+    occluders = _Occluders.from_scene(scene)
+    columns: dict[str, list[np.ndarray]] = {name: [] for name in ("frame", "camera_index", "track_id", "landmark_id", "pixel", "pixel_clean", "is_outlier")}
+    active = {camera.name: (np.zeros(0, np.int64), np.zeros(0, np.int64)) for camera in rig.cameras}  # landmark ids, track ids
+    next_track = 0
+    for frame in range(len(trajectory)):
+        for camera_index, camera in enumerate(rig.cameras):
+            T_world_camera = trajectory.pose(camera.body)[frame] @ camera.T_body_camera
+            ids, clean = landmarks_in_view(camera, T_world_camera, landmarks, tree, config.max_range_m, config.min_range_m)
+            nearby = occluders_in_view(occluders, T_world_camera, config.max_range_m)
+
+            def is_hidden(indices: np.ndarray) -> np.ndarray:
+                selected = ids[indices]
+                return occluded(T_world_camera[:3, 3], landmarks.points[selected], nearby, landmarks.quad_index[selected])
+
+            previous_ids, previous_tracks = active[camera.name]
+            keep_ids, keep_clean, count_continuing = _select_tracks(
+                ids, clean, previous_ids, config.max_tracks_per_camera, is_hidden, (camera.width, camera.height), rng)
+            tracks = np.empty(len(keep_ids), np.int64)
+            if count_continuing:
+                lookup = dict(zip(previous_ids.tolist(), previous_tracks.tolist()))
+                tracks[:count_continuing] = [lookup[landmark] for landmark in keep_ids[:count_continuing].tolist()]
+            tracks[count_continuing:] = np.arange(next_track, next_track + len(keep_ids) - count_continuing)
+            next_track += len(keep_ids) - count_continuing
+            active[camera.name] = (keep_ids, tracks)
+
+            noisy = keep_clean + rng.normal(0.0, config.pixel_noise_px, size=keep_clean.shape)
+            is_outlier = np.zeros(len(keep_ids), dtype=bool)
+            outlier_count = int(round(config.outlier_fraction * len(keep_ids)))
+            if outlier_count:
+                is_outlier[rng.choice(len(keep_ids), size=outlier_count, replace=False)] = True
+                noisy[is_outlier] = rng.uniform([-0.5, -0.5], [camera.width - 0.5, camera.height - 0.5], size=(outlier_count, 2))
+            columns["frame"].append(np.full(len(keep_ids), frame, np.int64))
+            columns["camera_index"].append(np.full(len(keep_ids), camera_index, np.int64))
+            columns["track_id"].append(tracks)
+            columns["landmark_id"].append(keep_ids)
+            columns["pixel"].append(noisy)
+            columns["pixel_clean"].append(keep_clean)
+            columns["is_outlier"].append(is_outlier)
+    stacked = {name: np.concatenate(parts) if parts else np.zeros(0) for name, parts in columns.items()}
+    return Measurements(
+        frame=stacked["frame"].astype(np.int64), camera_index=stacked["camera_index"].astype(np.int64),
+        track_id=stacked["track_id"].astype(np.int64), landmark_id=stacked["landmark_id"].astype(np.int64),
+        pixel=stacked["pixel"].reshape(-1, 2), pixel_clean=stacked["pixel_clean"].reshape(-1, 2),
+        is_outlier=stacked["is_outlier"].astype(bool), camera_names=tuple(rig.camera_names),
+        landmarks=landmarks.points, timestamps=trajectory.timestamps.copy(), rig=rig,
+    )
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """Everything :func:`simulate` produces (and :func:`simulate_dataset` writes)."""
+
+    config: SimulationConfig
+    rig: Rig
+    trajectory: Trajectory
+    scene: Scene
+    landmarks: LandmarkSet
+    measurements: Measurements
+    images_written: bool = False
+
+
+def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> SimulationResult:
+    """Run kinematics, scene, landmarks and measurements for a config (a path or a parsed config)."""
+    if not isinstance(config, SimulationConfig):
+        config = load_sim_config(config)
+    rig = config.load_rig() if rig is None else rig
+    if not rig.has_trailer:
+        raise ConfigError(f"{config.rig_path}: the simulator needs a rig with a trailer body")
+    rng = np.random.default_rng(config.seed)
+    trajectory = simulate_kinematics(config.route, config.rate_hz, rig.axle_x("tractor"), rig.axle_x("trailer"),
+                                     config.initial_hitch_angle, config.duration, slip=config.tyre_slip)
+    scene = build_scene(trajectory, rng, config.scene)
+    landmarks = sample_landmarks(scene, trajectory, config.scene, rng)
+    measurements = simulate_measurements(trajectory, rig, landmarks, scene, config, rng)
+    return SimulationResult(config, rig, trajectory, scene, landmarks, measurements)
+
+
+def _renderer():
+    """``ampc_vo.sim.render.render_sequence`` if the renderer exists, else ``None``."""
+    try:
+        from ampc_vo.sim import render  # noqa: PLC0415
+    except ImportError as error:
+        LOGGER.info("renderer not importable: %s", error)
+        return None
+    return getattr(render, "render_sequence", None)
+
+
+def simulate_dataset(config: SimulationConfig | str | Path, out_dir: str | Path, with_images: bool = True, progress: bool = False) -> SimulationResult:
+    """Simulate and write a dataset folder (DESIGN 5): ``rig.yaml``, ``groundtruth.csv``,
+    ``measurements.npz``, images (if ``with_images`` and the renderer is available) and
+    ``frames.csv`` (written last, with empty image paths when there are no images)."""
+    from ampc_vo.io.folder import write_dataset
+
+    started = time.perf_counter()
+    result = simulate(config)
+    out_dir = Path(out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OutputError(f"{out_dir}: cannot create the dataset folder ({error.strerror or error}: {error.filename})") from None
+    images_written = False
+    if with_images:
+        render_sequence = _renderer()
+        if render_sequence is not None:
+            from ampc_vo.sim.render import render_options_from_dict
+
+            options = render_options_from_dict(result.config.render, f"{result.config.source}: render")
+            render_sequence(out_dir, result.rig, result.trajectory, result.scene, options=options, progress=progress)
+            images_written = True
+    write_dataset(out_dir, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory,
+                  measurements=result.measurements, with_images=images_written)
+    LOGGER.info("dataset written to %s in %.1f s", out_dir, time.perf_counter() - started)
+    return SimulationResult(result.config, result.rig, result.trajectory, result.scene, result.landmarks, result.measurements, images_written)

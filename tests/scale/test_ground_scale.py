@@ -1,0 +1,261 @@
+"""Ground-plane metric scale (ampc_vo.scale.ground): chord of the tractor axle from road points.
+
+Synthetic scenes: road points on z = 0 in front of the default rig's front camera (2.5 m high,
+pitched down 10 deg), facade points on two walls (including their parts below the horizon, which
+read as farther road points at a larger chord), box tops, pixel noise and outliers. The motion
+given to the estimator has the true rotation but the wrong scale (chord 1 m).
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ampc_vo.config import load_config
+from ampc_vo.errors import BearingError
+from ampc_vo.geometry import invert_pose, make_pose, transform_points
+from ampc_vo.scale.ground import GroundScaleOptions, GroundScaleStatus, axle_chord_direction, ground_plane_chord, point_chords, robust_chord
+from ampc_vo.rig import load_rig
+from ampc_vo.solvers import ackermann_motion
+
+ROOT = Path(__file__).resolve().parents[2]
+RIG = load_rig(ROOT / "configs/rigs/default.yaml")
+FRONT, LEFT = RIG.camera("front"), RIG.camera("left")
+AXLE_X = RIG.axle_x("tractor")
+PIXEL_SIGMA = 0.5
+OPTIONS = GroundScaleOptions(ground_z=0.0, pixel_sigma=PIXEL_SIGMA)
+
+
+def _road_points(rng: np.random.Generator, count: int) -> np.ndarray:
+    """Road points (body frame of keyframe i) 4-25 m ahead of the hitch, 6 m either side."""
+    return np.column_stack([rng.uniform(6.0, 28.0, count), rng.uniform(-6.0, 6.0, count), np.zeros(count)])
+
+
+def _facade_points(rng: np.random.Generator, count: int) -> np.ndarray:
+    """Two walls 7 m left and right, 0-10 m high (a third of them below the camera)."""
+    side = rng.choice([-7.0, 7.0], count)
+    return np.column_stack([rng.uniform(5.0, 40.0, count), side, rng.uniform(0.0, 10.0, count)])
+
+
+def _observe(camera, points_i: np.ndarray, T_i_j: np.ndarray, rng: np.random.Generator, outliers: float = 0.0):
+    """Noisy camera-frame bearings (pixel noise) of body-frame-i points in keyframes i and j,
+    keeping points visible in both images; ``outliers``: fraction replaced by random pixels."""
+    bearings, valid = [], np.ones(len(points_i), bool)
+    pixels_views = []
+    for T_body in (np.eye(4), T_i_j):
+        T_camera = invert_pose(T_body @ camera.T_body_camera)
+        pixels, visible = camera.project(transform_points(T_camera, points_i))
+        pixels_views.append(pixels)
+        valid &= visible
+    for pixels in pixels_views:
+        noisy = pixels[valid] + rng.normal(0.0, PIXEL_SIGMA, size=(int(valid.sum()), 2))
+        if outliers:
+            bad = rng.random(len(noisy)) < outliers
+            noisy[bad] = rng.uniform([0, 0], [camera.width - 1, camera.height - 1], size=(int(bad.sum()), 2))
+        bearings.append(camera.unproject(noisy))
+    return bearings[0], bearings[1]
+
+
+def _motion(yaw_change: float, chord: float) -> np.ndarray:
+    return make_pose(*ackermann_motion(yaw_change, chord, AXLE_X))
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 4.0, -6.0])
+def test_chord_of_road_points_among_facades_matches_truth(yaw_deg: float) -> None:
+    rng = np.random.default_rng(3)
+    true_chord, yaw = 1.6, np.radians(yaw_deg)
+    points = np.concatenate([_road_points(rng, 60), _facade_points(rng, 150)])
+    bearings_i, bearings_j = _observe(FRONT, points, _motion(yaw, true_chord), rng, outliers=0.05)
+    result = ground_plane_chord([(FRONT, bearings_i, bearings_j)], _motion(yaw, 1.0), AXLE_X, OPTIONS)
+    assert result.ok, result.status
+    assert result.chord == pytest.approx(true_chord, rel=0.01)
+    assert abs(result.chord - true_chord) < 4.0 * result.sigma
+    # the sigma is that of a real measurement: the height term alone is 0.02/2.5 = 0.8 %
+    assert 0.005 * true_chord < result.sigma < 0.03 * true_chord
+    assert result.inlier_count >= OPTIONS.min_points
+    assert result.as_scale_chord() == (result.chord, result.sigma)
+
+
+def test_scale_of_given_motion_does_not_matter_and_cameras_combine() -> None:
+    rng = np.random.default_rng(5)
+    true_motion = _motion(np.radians(2.0), 1.8)
+    points = np.concatenate([_road_points(rng, 50), _facade_points(rng, 100)])
+    side_points = np.column_stack([rng.uniform(-2.0, 6.0, 40), rng.uniform(2.5, 8.0, 40), np.zeros(40)])
+    front = (FRONT, *_observe(FRONT, points, true_motion, rng))
+    left = (LEFT, *_observe(LEFT, np.concatenate([side_points, _facade_points(rng, 60)]), true_motion, rng))
+    chords = [ground_plane_chord([front, left], _motion(np.radians(2.0), given), AXLE_X, OPTIONS) for given in (0.3, 1.0, 5.0)]
+    assert all(result.ok for result in chords)
+    assert np.ptp([result.chord for result in chords]) < 1e-6  # (G) depends on the direction only
+    assert chords[0].chord == pytest.approx(1.8, rel=0.01)
+    assert all(np.count_nonzero(mask) > 0 for mask in chords[0].inliers)  # both cameras vote
+    assert [len(mask) for mask in chords[0].inliers] == [len(front[1]), len(left[1])]
+
+
+def test_noise_free_per_point_chords_are_exact_for_road_points_only() -> None:
+    rng = np.random.default_rng(1)
+    true_motion = _motion(np.radians(8.0), 1.5)
+    road, facade = _road_points(rng, 30), np.column_stack([rng.uniform(8, 20, 30), np.full(30, 7.0), rng.uniform(0.3, 2.3, 30)])
+    bearings = []
+    for T_body in (np.eye(4), true_motion):
+        T_camera = invert_pose(T_body @ FRONT.T_body_camera)
+        camera_points = transform_points(T_camera, np.concatenate([road, facade]))
+        bearings.append(camera_points / np.linalg.norm(camera_points, axis=1, keepdims=True))
+    points = point_chords(FRONT, bearings[0], bearings[1], _motion(np.radians(8.0), 1.0), AXLE_X, OPTIONS)
+    np.testing.assert_allclose(points.chord[:30], 1.5, rtol=1e-9)
+    np.testing.assert_allclose(points.ground_xy[:30], road[:, :2], atol=1e-8)
+    # a point at height z_p is read as a farther road point: chord ~ rho h / (h - z_p) > rho
+    assert np.all(points.chord[30:] > 1.5 * 1.05)
+    assert np.all(points.candidate[:30])
+
+
+def test_no_ground_points_gives_no_measurement() -> None:
+    rng = np.random.default_rng(2)
+    high = np.column_stack([rng.uniform(8, 40, 150), rng.choice([-7.0, 7.0], 150), rng.uniform(3.0, 12.0, 150)])
+    bearings_i, bearings_j = _observe(FRONT, high, _motion(0.0, 1.5), rng)
+    result = ground_plane_chord([(FRONT, bearings_i, bearings_j)], _motion(0.0, 1.0), AXLE_X, OPTIONS)
+    assert not result.ok and result.status is GroundScaleStatus.TOO_FEW_GROUND_POINTS
+    assert result.chord is None and result.sigma is None and result.as_scale_chord() is None
+
+
+def test_a_row_of_wall_points_is_not_a_road() -> None:
+    """Points along a wall at one height are a horizontal line: consistent with a plane, no area."""
+    rng = np.random.default_rng(4)
+    row = np.column_stack([rng.uniform(8, 30, 40), np.full(40, 7.0), np.full(40, 1.0)])
+    bearings_i, bearings_j = _observe(FRONT, row, _motion(0.0, 1.5), rng)
+    result = ground_plane_chord([(FRONT, bearings_i, bearings_j)], _motion(0.0, 1.0), AXLE_X, OPTIONS)
+    assert result.status is GroundScaleStatus.GROUND_ON_A_LINE
+
+
+def test_road_wins_over_a_larger_box_top_cluster_when_comparable() -> None:
+    rng = np.random.default_rng(6)
+    box_top = np.column_stack([rng.uniform(10, 14, 40), rng.uniform(-6.0, -3.0, 40), np.full(40, 1.1)])
+    points = np.concatenate([_road_points(rng, 30), box_top])
+    bearings_i, bearings_j = _observe(FRONT, points, _motion(0.0, 1.5), rng)
+    result = ground_plane_chord([(FRONT, bearings_i, bearings_j)], _motion(0.0, 1.0), AXLE_X, OPTIONS)
+    assert result.ok and result.chord == pytest.approx(1.5, rel=0.015)
+
+
+def test_zero_baseline_and_no_direction_give_reasons() -> None:
+    rng = np.random.default_rng(7)
+    points = np.concatenate([_road_points(rng, 60), _facade_points(rng, 100)])
+    bearings_i, bearings_j = _observe(FRONT, points, np.eye(4), rng)  # truck did not move
+    standstill = ground_plane_chord([(FRONT, bearings_i, bearings_j)], _motion(0.0, 1.0), AXLE_X, OPTIONS)
+    assert standstill.status is GroundScaleStatus.SMALL_BASELINE and standstill.chord is None
+    no_direction = ground_plane_chord([(FRONT, bearings_i, bearings_j)], np.eye(4), AXLE_X, OPTIONS)
+    assert no_direction.status is GroundScaleStatus.NO_MOTION_DIRECTION
+    assert axle_chord_direction(np.eye(4), AXLE_X) is None
+    empty = ground_plane_chord([(FRONT, np.zeros((0, 3)), np.zeros((0, 3)))], _motion(0.0, 1.0), AXLE_X, OPTIONS)
+    assert empty.status is GroundScaleStatus.TOO_FEW_GROUND_POINTS
+
+
+def test_camera_below_the_road_and_bad_bearings() -> None:
+    buried = dataclasses.replace(FRONT, T_body_camera=make_pose(FRONT.R_body_camera, np.array([2.5, 0.0, -0.5])))
+    bearings = np.tile([0.0, 0.3, 1.0], (20, 1))
+    result = ground_plane_chord([(buried, bearings, bearings)], _motion(0.0, 1.0), AXLE_X, OPTIONS)
+    assert result.status is GroundScaleStatus.CAMERA_NOT_ABOVE_ROAD
+    with pytest.raises(BearingError):
+        ground_plane_chord([(FRONT, np.full((5, 3), np.nan), bearings[:5])], _motion(0.0, 1.0), AXLE_X, OPTIONS)
+    with pytest.raises(BearingError):
+        ground_plane_chord([(FRONT, bearings[:5], bearings[:4])], _motion(0.0, 1.0), AXLE_X, OPTIONS)
+
+
+def test_robust_chord_is_msac_with_birge_inflated_sigma() -> None:
+    rng = np.random.default_rng(8)
+    road = 1.5 + rng.normal(0.0, 0.01, 40)
+    spread_out = rng.uniform(1.7, 4.0, 40)
+    chords = np.concatenate([road, spread_out])
+    estimate, sigma, inliers = robust_chord(chords, np.full(80, 0.01), OPTIONS)
+    assert estimate == pytest.approx(1.5, abs=0.006) and inliers[:40].mean() > 0.95 and inliers[40:].mean() < 0.1
+    assert sigma == pytest.approx(0.01 / np.sqrt(40), rel=0.4)
+    # per-point sigmas 3x too small: the spread inflates the sigma to the real one
+    _, inflated, _ = robust_chord(road, np.full(40, 0.01 / 3.0), dataclasses.replace(OPTIONS, consensus_sigmas=10.0))
+    assert inflated == pytest.approx(0.01 / np.sqrt(40), rel=0.4)
+    assert robust_chord(road[:5], np.full(5, 0.01), OPTIONS) is None
+
+
+def test_config_switch_and_keys() -> None:
+    config = load_config(ROOT / "configs/vo/default.yaml")
+    assert isinstance(config.scale.ground_plane, bool)
+    assert config.scale.ground_height_sigma_m > 0.0
+
+
+def test_known_tilted_road_normal_gives_exact_chords_and_normal_sigma_widens() -> None:
+    """A camera pitched 1 deg more than the rig says: (G) with the road normal seen from the rig
+    (tilted by the same 1 deg) is exact again; ``normal_sigma`` propagates such an error."""
+    rng = np.random.default_rng(9)
+    pitch = np.radians(1.0)
+    R_pitch = np.array([[np.cos(pitch), 0.0, np.sin(pitch)], [0.0, 1.0, 0.0], [-np.sin(pitch), 0.0, np.cos(pitch)]])
+    true_camera = dataclasses.replace(FRONT, T_body_camera=make_pose(R_pitch @ FRONT.R_body_camera, FRONT.center))
+    road = _road_points(rng, 40)
+    bearings = []
+    for T_body in (np.eye(4), _motion(0.0, 1.5)):
+        camera_points = transform_points(invert_pose(T_body @ true_camera.T_body_camera), road)
+        bearings.append(camera_points / np.linalg.norm(camera_points, axis=1, keepdims=True))
+    points = point_chords(FRONT, bearings[0], bearings[1], _motion(0.0, 1.0), AXLE_X, OPTIONS)
+    assert np.median(points.chord) > 1.5 * 1.03  # uncalibrated pitch: biased (module docstring)
+    # in the frame of the rig's (wrong) camera rotation, the road normal and the motion direction
+    # are both rotated by R_pitch^T about the camera: with both, (G) is exact again
+    seen = point_chords(FRONT, bearings[0], bearings[1], make_pose(np.eye(3), R_pitch.T @ np.array([1.0, 0.0, 0.0])), AXLE_X, OPTIONS)
+    np.testing.assert_allclose(seen.chords_for_normal(R_pitch.T @ np.array([0.0, 0.0, 1.0])), 1.5, rtol=1e-9)
+    plain = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, OPTIONS)
+    widened = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, dataclasses.replace(OPTIONS, normal_sigma=np.radians(1.0)))
+    assert plain.ok and widened.ok and widened.chord == plain.chord
+    assert abs(widened.chord - 1.5) < 3.0 * widened.sigma and widened.sigma > 2.0 * plain.sigma
+
+
+def _frame(index: int, observations: dict) -> "FrameObservations":
+    from ampc_vo.observations import CameraObservations, FrameObservations
+
+    cameras = {name: CameraObservations(name, ids, np.zeros((len(ids), 2)), bearings) for name, (ids, bearings) in observations.items()}
+    return FrameObservations(index, 0.1 * index, cameras)
+
+
+@pytest.mark.parametrize("switch", [True, False])
+def test_motion_initializer_fills_scale_chord_when_switched_on(switch: bool) -> None:
+    """Straight driving: the tractor RANSAC cannot see the scale (chord from the 1 m prediction);
+    the ground-plane hook measures the true 1.6 m chord and re-initialises the motion with it."""
+    from ampc_vo.config import ScaleConfig, VoConfig
+    from ampc_vo.backend.motion_init import MotionInitializer
+    from ampc_vo.backend.smoother import MotionStatus
+
+    rng = np.random.default_rng(10)
+    true_motion = _motion(0.0, 1.6)
+    first, second = {}, {}
+    for camera, points in ((FRONT, np.concatenate([_road_points(rng, 80), _facade_points(rng, 150)])),
+                           (LEFT, np.concatenate([np.column_stack([rng.uniform(-2, 8, 60), rng.uniform(2.5, 9, 60), np.zeros(60)]), _facade_points(rng, 80)]))):
+        bearings_i, bearings_j = _observe(camera, points, true_motion, rng)
+        ids = np.arange(len(bearings_i))
+        first[camera.name], second[camera.name] = (ids, bearings_i), (ids, bearings_j)
+    config = VoConfig(scale=ScaleConfig(ground_plane=switch), mode="tractor_only")
+    initializer = MotionInitializer(RIG, config)
+    frame_i, frame_j = _frame(0, first), _frame(2, second)
+    tractor = initializer.tractor(frame_i, frame_j, _motion(0.0, 1.0))
+    init = initializer.keyframe(frame_i, frame_j, tractor, None)
+    if not switch:
+        assert init.scale_chord is None
+        return
+    assert init.tractor_status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE)
+    chord, sigma = init.scale_chord
+    assert chord == pytest.approx(1.6, rel=0.015) and 0.0 < sigma < 0.05
+    assert np.linalg.norm(init.T_tractor[:2, 3]) == pytest.approx(1.6, rel=0.015)
+
+
+def test_yaw_uncertainty_of_the_motion_widens_the_sigma_to_cover_its_bias() -> None:
+    """A 0.2 deg yaw error of the given motion biases the chords (side camera most); with
+    ``yaw_sigma`` the cameras are combined by generalised least squares with that common error and
+    the sigma covers the bias, without it the error is many sigmas."""
+    normalized = {0.0: [], np.radians(0.2): []}
+    for seed in range(5):
+        rng = np.random.default_rng(20 + seed)
+        true_motion = _motion(0.0, 1.6)
+        front = (FRONT, *_observe(FRONT, np.concatenate([_road_points(rng, 50), _facade_points(rng, 100)]), true_motion, rng))
+        side_road = np.column_stack([rng.uniform(-2.0, 6.0, 80), rng.uniform(2.5, 8.0, 80), np.zeros(80)])
+        left = (LEFT, *_observe(LEFT, side_road, true_motion, rng))
+        for yaw_sigma in normalized:
+            result = ground_plane_chord([front, left], _motion(np.radians(0.2), 1.0), AXLE_X,
+                                        dataclasses.replace(OPTIONS, height_sigma_m=1e-6), yaw_sigma=yaw_sigma)
+            normalized[yaw_sigma].append((result.chord - 1.6) / result.sigma)
+    assert np.mean(normalized[0.0]) > 3.0
+    assert np.max(np.abs(normalized[np.radians(0.2)])) < 2.5
