@@ -1,7 +1,7 @@
 """Per-frame feature observations: the one currency between measurement sources and the backend.
 
 Two sources produce the same type (DESIGN section 4): the image frontend (``frontend``) tracks
-features in images, and the simulator's bearing measurements (``ampc_vo.sim``) replay
+features in images, and the simulator's bearing measurements (the simulator) replay
 ``measurements.npz``. The backend consumes :class:`FrameObservations` and does not know which.
 """
 from __future__ import annotations
