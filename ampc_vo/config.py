@@ -234,9 +234,8 @@ class ScaleConfig:
 
     ``ground_plane``: measure the tractor axle chord from road points seen by the tractor cameras
     and their known height above the road (``ampc_vo.scale.ground``; needs the cameras' pitch
-    relative to the road calibrated in the rig); ``ground_z_m``: z of the road surface in the body
-    frame (body origin at the hitch; the simulator's road is at the origin's height, 0;
-    a real truck: minus the hitch height); ``ground_height_sigma_m``: uncertainty of
+    relative to the road calibrated in the rig; the road plane is z = -``hitch_height`` of rig.yaml in
+    the body frame); ``ground_height_sigma_m``: uncertainty of
     the cameras' height above the road (suspension, camber); ``ground_normal_sigma_deg``: of their
     pitch and roll relative to the road (calibration, load, braking). ``cross_camera``: epipolar
     correspondences between two cameras of one body at different keyframes, associated by
@@ -248,7 +247,6 @@ class ScaleConfig:
     wheel_speed: bool = False
     wheel_speed_sigma_m: float = 0.05
     ground_plane: bool = True
-    ground_z_m: float = 0.0
     ground_height_sigma_m: float = 0.02
     ground_normal_sigma_deg: float = 0.0
     cross_camera: bool = True
@@ -275,8 +273,6 @@ class ScaleConfig:
         _at_least(self.cross_camera_max_gap, 1, where + "cross_camera_max_gap")
         _positive(self.cross_camera_gate_px, where + "cross_camera_gate_px")
         _positive(self.stereo_max_depth_m, where + "stereo_max_depth_m")
-        if not abs(self.ground_z_m) < float("inf"):  # finite (NaN fails too)
-            raise _error(where + "ground_z_m", f"must be finite, got {self.ground_z_m}")
 
 
 @dataclass(frozen=True)
@@ -412,6 +408,10 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
     raise _error(where, f"unsupported field type {annotation!r}")  # pragma: no cover
 
 
+# keys that moved: a config that still sets one is told where it went
+_MOVED_KEYS = {"scale.ground_z_m": "replaced by hitch_height in rig.yaml (the road plane is z = -hitch_height)"}
+
+
 def _section_from_dict(cls: type, raw: Any, where: str) -> Any:
     if raw is None:
         return cls()
@@ -420,6 +420,9 @@ def _section_from_dict(cls: type, raw: Any, where: str) -> Any:
     hints = typing.get_type_hints(cls)
     names = [item.name for item in dataclasses.fields(cls)]
     unknown = sorted(set(raw) - set(names))
+    for key in unknown:
+        if where + str(key) in _MOVED_KEYS:
+            raise _error(where + str(key), _MOVED_KEYS[where + str(key)])
     if unknown:
         raise _error(where + str(unknown[0]), f"unknown key (known keys: {', '.join(names)})")
     values = {}

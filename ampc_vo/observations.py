@@ -31,6 +31,9 @@ class CameraObservations:
     pixels: np.ndarray
     bearings: np.ndarray
     landmark_ids: np.ndarray | None = None
+    # capture time of this camera's image (seconds; frames.csv ``<camera>_timestamp``); None: the
+    # frame's timestamp. With rolling shutter it is the time of the first image row.
+    timestamp: float | None = None
 
     def __len__(self) -> int:
         return int(self.track_ids.shape[0])
@@ -47,6 +50,11 @@ class FrameObservations:
     frame: int
     timestamp: float
     cameras: dict[str, CameraObservations] = field(default_factory=dict)
+
+    def camera_timestamp(self, camera: str) -> float:
+        """When ``camera``'s observations were captured (its own time, else the frame's)."""
+        observations = self.cameras.get(camera)
+        return self.timestamp if observations is None or observations.timestamp is None else float(observations.timestamp)
 
 
 def match_tracks(first: CameraObservations, second: CameraObservations) -> tuple[np.ndarray, np.ndarray]:

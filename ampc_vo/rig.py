@@ -26,7 +26,8 @@ from ampc_vo.geometry import make_pose, quat_xyzw_from_rotation, rot_y, rot_z, r
 
 BODY_NAMES = ("tractor", "trailer")
 CAMERA_MODELS = ("pinhole", "fisheye")
-CAMERA_KEYS = ("name", "body", "model", "width", "height", "fx", "fy", "cx", "cy", "distortion", "T_body_camera")
+CAMERA_KEYS = ("name", "body", "model", "width", "height", "fx", "fy", "cx", "cy", "distortion", "T_body_camera", "readout_time", "topic")
+RIG_KEYS = ("bodies", "cameras", "hitch_height")
 _NEWTON_ITERATIONS = 30
 _FISHEYE_MAX_THETA = np.deg2rad(100.0)
 
@@ -64,6 +65,11 @@ class Camera:
     cy: float
     distortion: tuple[float, ...] = ()
     T_body_camera: np.ndarray = field(default_factory=lambda: np.eye(4))
+    # rolling shutter: seconds from the first to the last image row (0: global shutter); row r is
+    # exposed at the image's capture time + readout_time * r / (height - 1)
+    readout_time: float = 0.0
+    # where a recording carries this camera's images (ROS topic; None: our dataset folder)
+    topic: str | None = None
 
     # ------------------------------------------------------------------ convenience
     @property
@@ -88,7 +94,7 @@ class Camera:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Camera):
             return NotImplemented
-        scalars = ("name", "body", "model", "width", "height", "fx", "fy", "cx", "cy")
+        scalars = ("name", "body", "model", "width", "height", "fx", "fy", "cx", "cy", "readout_time", "topic")
         return (
             all(getattr(self, key) == getattr(other, key) for key in scalars)
             and tuple(self.distortion) == tuple(other.distortion)
@@ -206,6 +212,14 @@ class Rig:
 
     bodies: dict[str, Body]
     cameras: tuple[Camera, ...]
+    # the king-pin's (body origin's) height above the road when standing level, metres: the road
+    # plane is z = -hitch_height in both body frames (DESIGN 1)
+    hitch_height: float = 0.0
+
+    @property
+    def ground_z(self) -> float:
+        """z of the road plane in either body frame when standing level (``-hitch_height``)."""
+        return -self.hitch_height
 
     @property
     def camera_names(self) -> list[str]:
@@ -267,7 +281,10 @@ def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
     """
     if not isinstance(raw, dict):
         raise ConfigError(f"{source}: expected a mapping with 'bodies' and 'cameras'")
-    _check_keys(raw, ("bodies", "cameras"), "", source)
+    _check_keys(raw, RIG_KEYS, "", source)
+    hitch_height = _number(raw.get("hitch_height", 0.0), "hitch_height", source)
+    if hitch_height < 0.0:
+        raise ConfigError(f"{source}: hitch_height: the king-pin's height above the road must be >= 0 m, got {hitch_height}")
     raw_bodies = _require(raw, "bodies", "", source)
     if not isinstance(raw_bodies, dict):
         raise ConfigError(f"{source}: bodies: expected a mapping of body name to {{axle_x: ...}}")
@@ -314,6 +331,12 @@ def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
         _check_keys(extrinsics, ("translation", "quaternion"), where + "T_body_camera.", source)
         translation = _vector(_require(extrinsics, "translation", where + "T_body_camera.", source), 3, where + "T_body_camera.translation", source)
         quaternion = _vector(_require(extrinsics, "quaternion", where + "T_body_camera.", source), 4, where + "T_body_camera.quaternion", source)
+        readout_time = _number(spec.get("readout_time", 0.0), where + "readout_time", source)
+        if not 0.0 <= readout_time < 1.0:
+            raise ConfigError(f"{source}: {where}readout_time: rolling-shutter readout must be in [0, 1) s, got {readout_time}")
+        topic = spec.get("topic")
+        if topic is not None and (not isinstance(topic, str) or not topic.strip()):
+            raise ConfigError(f"{source}: {where}topic: expected a topic name, got {topic!r}")
         if abs(np.linalg.norm(quaternion) - 1.0) > 1e-6:
             raise ConfigError(f"{source}: {where}T_body_camera.quaternion: not a unit quaternion (norm {np.linalg.norm(quaternion):.6f}); order is x y z w")
         cameras.append(
@@ -323,13 +346,14 @@ def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
                 fx=intrinsics["fx"], fy=intrinsics["fy"], cx=intrinsics["cx"], cy=intrinsics["cy"],
                 distortion=distortion,
                 T_body_camera=make_pose(rotation_from_quat_xyzw(quaternion), translation),
+                readout_time=readout_time, topic=topic,
             )
         )
     names = [camera.name for camera in cameras]
     duplicated = sorted({name for name in names if names.count(name) > 1})
     if duplicated:
         raise ConfigError(f"{source}: cameras: duplicate camera names {duplicated}")
-    return Rig(bodies=bodies, cameras=tuple(cameras))
+    return Rig(bodies=bodies, cameras=tuple(cameras), hitch_height=hitch_height)
 
 
 def rig_to_dict(rig: Rig) -> dict:
@@ -348,7 +372,11 @@ def rig_to_dict(rig: Rig) -> dict:
                 },
             }
         )
-    return {"bodies": {name: {"axle_x": float(body.axle_x)} for name, body in rig.bodies.items()}, "cameras": cameras}
+        if camera.readout_time:
+            cameras[-1]["readout_time"] = float(camera.readout_time)
+        if camera.topic is not None:
+            cameras[-1]["topic"] = camera.topic
+    return {"hitch_height": float(rig.hitch_height), "bodies": {name: {"axle_x": float(body.axle_x)} for name, body in rig.bodies.items()}, "cameras": cameras}
 
 
 def load_rig(path: str | Path) -> Rig:

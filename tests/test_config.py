@@ -72,3 +72,10 @@ def test_with_mode():
         assert VoConfig().with_mode(mode).mode == mode
     with pytest.raises(ConfigError, match="mode"):
         VoConfig().with_mode("fast")
+
+
+def test_a_moved_key_says_where_it_went():
+    from ampc_vo.config import config_from_dict
+
+    with pytest.raises(ConfigError, match="scale.ground_z_m: replaced by hitch_height in rig.yaml"):
+        config_from_dict({"scale": {"ground_z_m": -1.2}}, "vo.yaml")

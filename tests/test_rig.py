@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from ampc_vo.errors import ConfigError
 from ampc_vo.geometry import make_pose
-from ampc_vo.rig import Camera, camera_rotation, load_rig, rig_to_dict, save_rig
+from ampc_vo.rig import Camera, camera_rotation, load_rig, replace_camera, rig_to_dict, save_rig
 
 PINHOLE = Camera("pin", "tractor", "pinhole", 640, 480, 320.0, 321.0, 319.5, 239.5, (-0.12, 0.03, 0.001, -0.0005, -0.002))
 PINHOLE_PLAIN = Camera("plain", "tractor", "pinhole", 640, 480, 320.0, 320.0, 319.5, 239.5)
@@ -166,3 +166,35 @@ def test_bearings_in_body_rotate_into_the_body_frame():
                     T_body_camera=make_pose(camera_rotation(np.pi / 2), np.array([1.0, 1.0, 2.0])))
     bearing = camera.bearings_in_body(np.array([[319.5, 239.5]]))
     assert np.allclose(bearing, [[0.0, 1.0, 0.0]])
+
+
+def test_hitch_height_readout_time_and_topic_round_trip(tmp_path, default_rig):
+    raw = rig_to_dict(default_rig)
+    raw["hitch_height"] = 1.2
+    raw["cameras"][0]["readout_time"] = 0.03
+    raw["cameras"][1]["topic"] = "/cam_left/image_raw/compressed"
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(raw))
+    rig = load_rig(tmp_path / "rig.yaml")
+    assert rig.hitch_height == 1.2 and rig.ground_z == -1.2
+    assert rig.cameras[0].readout_time == 0.03 and rig.cameras[0].topic is None
+    assert rig.cameras[1].topic == "/cam_left/image_raw/compressed" and rig.cameras[1].readout_time == 0.0
+    save_rig(rig, tmp_path / "again.yaml")
+    again = load_rig(tmp_path / "again.yaml")
+    assert again.hitch_height == 1.2
+    assert [(c.readout_time, c.topic) for c in again.cameras] == [(c.readout_time, c.topic) for c in rig.cameras]
+    assert again.cameras[0] != replace_camera(again.cameras[0], readout_time=0.0)  # readout_time is part of equality
+
+
+@pytest.mark.parametrize("change, problem", [
+    (lambda raw: raw.update(hitch_height=-0.5), "hitch_height: the king-pin's height above the road must be >= 0"),
+    (lambda raw: raw.update(hitch_height="high"), "hitch_height: expected a number"),
+    (lambda raw: raw["cameras"][0].update(readout_time=2.0), "cameras[0].readout_time: rolling-shutter readout must be in [0, 1) s"),
+    (lambda raw: raw["cameras"][0].update(topic=""), "cameras[0].topic: expected a topic name"),
+])
+def test_new_rig_keys_are_validated(tmp_path, default_rig, change, problem):
+    raw = rig_to_dict(default_rig)
+    change(raw)
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(raw))
+    with pytest.raises(ConfigError) as error:
+        load_rig(tmp_path / "rig.yaml")
+    assert problem in str(error.value)

@@ -150,7 +150,7 @@ class MotionInitializer:
         self._rng = np.random.default_rng(config.ransac.seed)
         self.use_trailer = rig.has_trailer and config.mode != "tractor_only"
         self._ground_options = GroundScaleOptions(
-            ground_z=config.scale.ground_z_m, pixel_sigma=config.smoother.pixel_sigma, height_sigma_m=config.scale.ground_height_sigma_m,
+            ground_z=rig.ground_z, pixel_sigma=config.smoother.pixel_sigma, height_sigma_m=config.scale.ground_height_sigma_m,
             normal_sigma=float(np.radians(config.scale.ground_normal_sigma_deg)))
         self._stereo_options = StereoScaleOptions(pixel_sigma=config.smoother.pixel_sigma, max_depth_m=config.scale.stereo_max_depth_m)
 

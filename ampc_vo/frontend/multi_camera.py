@@ -2,6 +2,7 @@
 images in, :class:`~ampc_vo.observations.FrameObservations` out (DESIGN section 4)."""
 from __future__ import annotations
 
+import dataclasses
 import logging
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -71,8 +72,10 @@ class MultiCameraFrontend:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def process_with_details(self, frame: int, timestamp: float, images: dict[str, np.ndarray | None]) -> FrontendResult:
-        """Track every camera (a missing entry counts as a missing image) and match stereo pairs."""
+    def process_with_details(self, frame: int, timestamp: float, images: dict[str, np.ndarray | None],
+                             camera_timestamps: dict[str, float] | None = None) -> FrontendResult:
+        """Track every camera (a missing entry counts as a missing image) and match stereo pairs;
+        ``camera_timestamps``: the capture time of each camera's image (default: ``timestamp``)."""
         unknown = set(images) - set(self.trackers)
         if unknown:
             raise DatasetError(f"frame {frame}: images for unknown cameras {sorted(unknown)}")
@@ -82,6 +85,9 @@ class MultiCameraFrontend:
         else:
             results = [self.trackers[name].track(images.get(name)) for name in names]
         cameras = dict(zip(names, results))
+        if camera_timestamps:
+            cameras = {name: dataclasses.replace(observations, timestamp=float(camera_timestamps[name])) if name in camera_timestamps else observations
+                       for name, observations in cameras.items()}
         stereo = {}
         for first, second in self.stereo_pairs:
             tracker_first, tracker_second = self.trackers[first], self.trackers[second]
@@ -95,9 +101,10 @@ class MultiCameraFrontend:
         reports = {name: self.trackers[name].last_report for name in names}
         return FrontendResult(FrameObservations(frame, float(timestamp), cameras), reports, stereo)
 
-    def process(self, frame: int, timestamp: float, images: dict[str, np.ndarray | None]) -> FrameObservations:
+    def process(self, frame: int, timestamp: float, images: dict[str, np.ndarray | None],
+                camera_timestamps: dict[str, float] | None = None) -> FrameObservations:
         """:meth:`process_with_details` without the details."""
-        return self.process_with_details(frame, timestamp, images).observations
+        return self.process_with_details(frame, timestamp, images, camera_timestamps).observations
 
 
 class ImageDataset(Protocol):
@@ -118,6 +125,12 @@ def track_dataset(dataset: ImageDataset, frontend: MultiCameraFrontend, start: i
     :class:`FrontendResult` per frame (``.observations`` is what the backend consumes)."""
     stop = len(dataset) if stop is None else min(stop, len(dataset))
     for frame in range(start, stop):
-        yield frontend.process_with_details(frame, float(dataset.timestamps[frame]), load_frame_images(dataset, frame))
+        yield frontend.process_with_details(frame, float(dataset.timestamps[frame]), load_frame_images(dataset, frame), camera_capture_times(dataset, frame))
+
+
+def camera_capture_times(dataset: object, frame: int) -> dict[str, float] | None:
+    """Per-camera capture times of one frame when the dataset has them (``camera_timestamps``)."""
+    times = getattr(dataset, "camera_timestamps", None)
+    return {name: float(values[frame]) for name, values in times.items()} if times else None
 
 

@@ -33,7 +33,7 @@ import numpy as np
 from ampc_vo.config import VoConfig
 from ampc_vo.io.frame_images import load_frame_images
 from ampc_vo.errors import DatasetError
-from ampc_vo.frontend.multi_camera import FrontendResult, MultiCameraFrontend
+from ampc_vo.frontend.multi_camera import camera_capture_times, FrontendResult, MultiCameraFrontend
 from ampc_vo.frontend.stereo import match_stereo_image, observations_with_stereo
 from ampc_vo.observations import FrameObservations
 from ampc_vo.rig import Rig
@@ -135,7 +135,7 @@ def image_steps(dataset: object, rig: Rig, config: VoConfig, frames: range,
         def produce(frame: int) -> FrameStep:
             started = time.perf_counter()
             images = load_frame_images(dataset, frame)
-            result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), images)
+            result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), images, camera_capture_times(dataset, frame))
             return FrameStep(result.observations, images, result, time.perf_counter() - started)
 
         yield from _pipelined(frames, produce, config.frontend_worker == "thread")
@@ -151,13 +151,14 @@ def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, frames: rang
     (:func:`observations_with_stereo`), the cross-camera association the smoother's two-camera GEC
     and :mod:`ampc_vo.scale.stereo` use. About half the tracking cost of tracking both cameras."""
     seconds = {second for _, second in stereo_pairs}
-    tracked = Rig(rig.bodies, tuple(camera for camera in rig.cameras if camera.name not in seconds))
+    tracked = dataclasses.replace(rig, cameras=tuple(camera for camera in rig.cameras if camera.name not in seconds))
     with MultiCameraFrontend(tracked, config.frontend, threads=config.threads) as frontend:
 
         def produce(frame: int) -> FrameStep:
             started = time.perf_counter()
             images = load_frame_images(dataset, frame)
-            result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), {name: images.get(name) for name in frontend.trackers})
+            result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), {name: images.get(name) for name in frontend.trackers},
+                                                   camera_capture_times(dataset, frame))
             stereo = {}
             for first, second in stereo_pairs:
                 stereo[(first, second)] = match_stereo_image(frontend.trackers[first], images.get(second), result.observations.cameras[first],

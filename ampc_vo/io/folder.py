@@ -18,7 +18,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +37,8 @@ GROUNDTRUTH_FILE = "groundtruth.csv"
 IMAGES_DIR = "images"
 POSE_FIELDS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 GROUNDTRUTH_COLUMNS = ("timestamp",) + tuple(f"tractor_{name}" for name in POSE_FIELDS) + tuple(f"trailer_{name}" for name in POSE_FIELDS) + ("hitch_angle",)
+CAMERA_TIMESTAMP_SUFFIX = "_timestamp"
+MAX_CAMERA_OFFSET_S = 0.5  # a camera's capture time this far from the frame's timestamp is an error
 TIMESTAMP_TOLERANCE = 1e-6  # seconds: ground truth and frame timestamps must agree to this
 
 
@@ -46,13 +48,23 @@ def image_relative_path(camera: str, frame: int) -> str:
 
 
 # ---------------------------------------------------------------------- writer
-def write_frames_csv(path: Path, camera_names: list[str], timestamps: np.ndarray, with_images: bool) -> None:
+def camera_timestamp_column(camera: str) -> str:
+    """The frames.csv column of one camera's capture times (DESIGN section 5)."""
+    return f"{camera}{CAMERA_TIMESTAMP_SUFFIX}"
+
+
+def write_frames_csv(path: Path, camera_names: list[str], timestamps: np.ndarray, with_images: bool,
+                     camera_timestamps: dict[str, np.ndarray] | None = None) -> None:
+    """``frame, timestamp, <camera>..., [<camera>_timestamp...]``: the per-camera capture times only
+    for the cameras in ``camera_timestamps`` (the others use ``timestamp``)."""
+    stamped = [name for name in camera_names if camera_timestamps and name in camera_timestamps]
     with open(path, "w", newline="") as handle:
         writer = csv.writer(handle)
-        writer.writerow(["frame", "timestamp", *camera_names])
+        writer.writerow(["frame", "timestamp", *camera_names, *(camera_timestamp_column(name) for name in stamped)])
         for frame, timestamp in enumerate(timestamps):
             paths = [image_relative_path(name, frame) if with_images else "" for name in camera_names]
-            writer.writerow([frame, repr(float(timestamp)), *paths])
+            times = [repr(float(camera_timestamps[name][frame])) for name in stamped]
+            writer.writerow([frame, repr(float(timestamp)), *paths, *times])
 
 
 def write_groundtruth_csv(path: Path, trajectory: Trajectory) -> None:
@@ -72,6 +84,7 @@ def write_dataset(
     groundtruth: Trajectory | None = None,
     measurements: Measurements | None = None,
     with_images: bool = False,
+    camera_timestamps: dict[str, np.ndarray] | None = None,
 ) -> Path:
     """Write ``rig.yaml``, ``frames.csv`` and, if given, ``groundtruth.csv`` and ``measurements.npz``.
 
@@ -88,7 +101,7 @@ def write_dataset(
         write_groundtruth_csv(root / GROUNDTRUTH_FILE, groundtruth)
     if measurements is not None:
         save_measurements(measurements, root / MEASUREMENTS_FILE)
-    write_frames_csv(root / FRAMES_FILE, rig.camera_names, timestamps, with_images)
+    write_frames_csv(root / FRAMES_FILE, rig.camera_names, timestamps, with_images, camera_timestamps)
     return root
 
 
@@ -105,6 +118,14 @@ class Dataset:
     image_paths: np.ndarray
     groundtruth: Trajectory | None
     measurements: Measurements | None
+    # capture time of each camera's image per frame (F,), from the ``<camera>_timestamp`` columns;
+    # a camera without its column uses ``timestamps``
+    camera_timestamps: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def camera_timestamp(self, frame: int, camera: str) -> float:
+        """When ``camera``'s image of ``frame`` was captured (seconds)."""
+        times = self.camera_timestamps.get(camera)
+        return float(self.timestamps[frame] if times is None else times[frame])
 
     @property
     def has_images(self) -> bool:
@@ -200,13 +221,17 @@ def _floats(path: Path, rows: list[list[str]], columns: slice, line_offset: int 
         raise DatasetError(f"{path}: not a number ({error})") from None
 
 
-def _read_frames(path: Path, rig: Rig) -> tuple[np.ndarray, np.ndarray, tuple[str, ...], np.ndarray]:
+def _read_frames(path: Path, rig: Rig) -> tuple[np.ndarray, np.ndarray, tuple[str, ...], np.ndarray, dict[str, np.ndarray]]:
     header, rows = _read_csv(path)
     if header[:2] != ["frame", "timestamp"]:
         raise DatasetError(f"{path}: header must start with 'frame,timestamp', got {','.join(header[:2])!r}")
-    camera_names = tuple(header[2:])
+    time_columns = {name.removesuffix(CAMERA_TIMESTAMP_SUFFIX): index for index, name in enumerate(header)
+                    if index >= 2 and name.endswith(CAMERA_TIMESTAMP_SUFFIX) and name.removesuffix(CAMERA_TIMESTAMP_SUFFIX) in rig.camera_names}
+    image_columns = [index for index in range(2, len(header)) if index not in time_columns.values()]
+    camera_names = tuple(header[index] for index in image_columns)
     if sorted(camera_names) != sorted(rig.camera_names) or len(set(camera_names)) != len(camera_names):
-        raise DatasetError(f"{path}: camera columns {list(camera_names)} do not match the rig's cameras {rig.camera_names}")
+        raise DatasetError(f"{path}: camera columns {list(camera_names)} do not match the rig's cameras {rig.camera_names}"
+                           f" (optional capture-time columns: <camera>{CAMERA_TIMESTAMP_SUFFIX})")
     if not rows:
         raise DatasetError(f"{path}: no frames")
     for number, row in enumerate(rows):
@@ -223,8 +248,22 @@ def _read_frames(path: Path, rig: Rig) -> tuple[np.ndarray, np.ndarray, tuple[st
     if len(decreasing):
         line = int(decreasing[0]) + 3
         raise DatasetError(f"{path}: timestamps not strictly increasing at line {line} ({timestamps[decreasing[0]]} then {timestamps[decreasing[0] + 1]})")
-    image_paths = np.array([[value.strip() for value in row[2:]] for row in rows], dtype=object).reshape(len(rows), len(camera_names))
-    return frames.astype(np.int64), timestamps, camera_names, image_paths
+    image_paths = np.array([[row[index].strip() for index in image_columns] for row in rows], dtype=object).reshape(len(rows), len(camera_names))
+    camera_timestamps = {}
+    for camera, index in time_columns.items():
+        times = _floats(path, rows, slice(index, index + 1))[:, 0]
+        column = header[index]
+        if not np.all(np.isfinite(times)):
+            raise DatasetError(f"{path}: {column}: capture times must be finite")
+        offset = np.abs(times - timestamps)
+        if np.any(offset > MAX_CAMERA_OFFSET_S):
+            line = int(np.argmax(offset)) + 2
+            raise DatasetError(f"{path}: line {line}: {column} is {offset.max():.3f} s from the frame's timestamp "
+                               f"(more than {MAX_CAMERA_OFFSET_S} s: wrong unit or clock?)")
+        if np.any(np.diff(times) <= 0.0):
+            raise DatasetError(f"{path}: {column}: capture times not strictly increasing")
+        camera_timestamps[camera] = times
+    return frames.astype(np.int64), timestamps, camera_names, image_paths, camera_timestamps
 
 
 def _read_groundtruth(path: Path, timestamps: np.ndarray) -> Trajectory:
@@ -292,7 +331,7 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
     except ConfigError as error:
         raise DatasetError(str(error)) from None
     frames_path = root / FRAMES_FILE
-    frames, timestamps, camera_names, image_paths = _read_frames(frames_path, rig)
+    frames, timestamps, camera_names, image_paths, camera_timestamps = _read_frames(frames_path, rig)
     empty = image_paths == ""
     if image_files and not np.all(empty) and not (root / IMAGES_DIR).is_dir():
         LOGGER.warning("%s: frames.csv lists images but %s/ is absent: reading as a dataset without images", root, IMAGES_DIR)
@@ -324,4 +363,4 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
             raise DatasetError(f"{measurements_path}: {measurements.frame_count} frames but frames.csv has {len(timestamps)}")
         measurements = _with_frame_timestamps(measurements_path, measurements, timestamps)
     LOGGER.info("dataset %s: %d frames, cameras %s, images %s", root, len(timestamps), list(camera_names), not np.all(empty))
-    return Dataset(root, rig, frames, timestamps, camera_names, image_paths, groundtruth, measurements)
+    return Dataset(root, rig, frames, timestamps, camera_names, image_paths, groundtruth, measurements, camera_timestamps)

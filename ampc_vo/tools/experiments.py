@@ -49,5 +49,5 @@ def miscalibrated_rig(rig: Rig, cameras: tuple[str, ...], axis: str, degrees: fl
     unknown = set(cameras) - set(rig.camera_names)
     if unknown:
         raise ValueError(f"rig has no camera(s) {sorted(unknown)}; cameras: {rig.camera_names}")
-    return Rig(rig.bodies, tuple(replace(camera, T_body_camera=camera.T_body_camera @ error) if camera.name in cameras else camera
+    return replace(rig, cameras=tuple(replace(camera, T_body_camera=camera.T_body_camera @ error) if camera.name in cameras else camera
                                  for camera in rig.cameras))

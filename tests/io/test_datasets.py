@@ -200,3 +200,29 @@ def test_measurement_timestamps_must_match_the_frames(tmp_path, default_rig, sho
         read_dataset(root)
     save_measurements(_measurements(np.arange(len(times), dtype=float), default_rig.camera_names), root / MEASUREMENTS_FILE)  # none in the file
     np.testing.assert_array_equal(read_dataset(root).measurements.timestamps, times)
+
+
+def test_per_camera_capture_times_round_trip(tmp_path, default_rig, short_trajectory):
+    """frames.csv ``<camera>_timestamp`` columns (DESIGN section 5): written for some cameras, read
+    back exactly; cameras without a column use the frame's timestamp."""
+    timestamps = short_trajectory.timestamps
+    offsets = {"front": 0.012, "rear": -0.031}
+    camera_timestamps = {name: timestamps + offset for name, offset in offsets.items()}
+    root = write_dataset(tmp_path / "dataset", default_rig, timestamps, camera_timestamps=camera_timestamps)
+    header = (root / "frames.csv").read_text().splitlines()[0].split(",")
+    assert header[-2:] == ["front_timestamp", "rear_timestamp"]
+    dataset = read_dataset(root)
+    assert set(dataset.camera_timestamps) == {"front", "rear"}
+    np.testing.assert_array_equal(dataset.camera_timestamps["rear"], timestamps - 0.031)
+    assert dataset.camera_timestamp(3, "front") == timestamps[3] + 0.012
+    assert dataset.camera_timestamp(3, "left") == timestamps[3]
+
+
+@pytest.mark.parametrize("offset, problem", [(0.8, "s from the frame's timestamp"), (float("nan"), "capture times must be finite")])
+def test_implausible_capture_times_are_refused(tmp_path, default_rig, short_trajectory, offset, problem):
+    timestamps = short_trajectory.timestamps
+    times = timestamps.copy()
+    times[4] += offset
+    root = write_dataset(tmp_path / "dataset", default_rig, timestamps, camera_timestamps={"left": times})
+    with pytest.raises(DatasetError, match=problem):
+        read_dataset(root)
