@@ -188,14 +188,19 @@ class SmootherConfig:
     lag_s: float = 3.0
     pixel_sigma: float = 1.0
     huber_k: float = 1.5
-    nonholonomic_sigma_m: float = 0.02
+    nonholonomic_sigma_m: float = 0.005          # floor of the non-holonomic residual sigma (m)
+    nonholonomic_slip_deg: float = 0.2           # tractor axle: slip angle the arc model misses when not cornering
+    trailer_nonholonomic_slip_deg: float = 0.2   # trailer axle group: the same
+    nonholonomic_slip_deg_per_mps2: float = 0.7  # both: tyre slip angle per m/s^2 of lateral acceleration (cornering coefficient ~0.15/deg)
     planar_rotation_sigma_deg: float = 0.2
     planar_height_sigma_m: float = 0.02
     joint_loop_rotation_sigma_deg: float = 0.1
     joint_loop_translation_sigma_m: float = 0.01
+    joint_loop_pitch_sigma_deg: float = 10.0   # the fifth wheel's plate pitches freely (about +-15 deg of travel)
     prior_rotation_sigma_deg: float = 0.01
     prior_translation_sigma_m: float = 0.001
     hitch_prior_sigma_deg: float = 30.0
+    hitch_limit_deg: float = 90.0   # the hitch's mechanical range (jack-knife stop), factors.hitch_limit
     hitch_random_walk_deg_per_m: float = 5.0
     hitch_hold_sigma_growth_deg_per_s: float = 1.0
     standstill_rotation_sigma_deg: float = 0.01
@@ -205,16 +210,16 @@ class SmootherConfig:
     max_pair_gap: int = 1
     gate_px: float = 3.0
     max_window_tracks_per_camera: int = 150
-    lm_max_iterations: int | None = None  # None: 1 with output.publish lagged, 10 with latest (VoConfig.lm_iterations)
+    lm_max_iterations: int | None = None  # None: 10 (VoConfig.lm_iterations); LM stops earlier at lm_relative_error_tol
     lm_lambda_initial: float = 1.0
     lm_relative_error_tol: float = 1e-4
     marginals: bool = True
 
     def validate(self, where: str) -> None:
         for name in (
-            "lag_s", "pixel_sigma", "huber_k", "nonholonomic_sigma_m", "planar_rotation_sigma_deg",
-            "planar_height_sigma_m", "joint_loop_rotation_sigma_deg", "joint_loop_translation_sigma_m",
-            "prior_rotation_sigma_deg", "prior_translation_sigma_m", "hitch_prior_sigma_deg",
+            "lag_s", "pixel_sigma", "huber_k", "nonholonomic_sigma_m", "nonholonomic_slip_deg", "trailer_nonholonomic_slip_deg", "nonholonomic_slip_deg_per_mps2", "planar_rotation_sigma_deg",
+            "planar_height_sigma_m", "joint_loop_rotation_sigma_deg", "joint_loop_translation_sigma_m", "joint_loop_pitch_sigma_deg",
+            "prior_rotation_sigma_deg", "prior_translation_sigma_m", "hitch_prior_sigma_deg", "hitch_limit_deg",
             "hitch_random_walk_deg_per_m", "hitch_hold_sigma_growth_deg_per_s", "lm_lambda_initial",
             "standstill_rotation_sigma_deg", "standstill_translation_sigma_m", "weak_motion_rotation_sigma_deg",
             "weak_motion_translation_sigma_m", "gate_px",
@@ -223,6 +228,8 @@ class SmootherConfig:
             _positive(getattr(self, name), where + name)
         if self.lm_max_iterations is not None:
             _at_least(self.lm_max_iterations, 1, where + "lm_max_iterations")
+        if not self.hitch_limit_deg < 180.0:
+            raise _error(where + "hitch_limit_deg", f"must be below 180, got {self.hitch_limit_deg}")
         _at_least(self.max_window_tracks_per_camera, 2, where + "max_window_tracks_per_camera")
         _at_least(self.max_pair_gap, 1, where + "max_pair_gap")
 
@@ -339,13 +346,14 @@ class VoConfig:
 
     @property
     def lm_iterations(self) -> int:
-        """LM iterations per smoother update: ``smoother.lm_max_iterations``, or by default 1 when
-        keyframes are published as they leave the window (each one is optimised at every update
-        while in it) and 10 when the newest keyframe is published at once (it must converge in one
-        update)."""
+        """LM iterations per smoother update at most: ``smoother.lm_max_iterations``, by default 10
+        in both publish modes (LM stops at ``lm_relative_error_tol``, so a converged window costs
+        one or two steps). One step per update is not enough after a standing start: the first
+        moving keyframes linearise the hitch far from the truth and a single damped step leaves it
+        there with a confident marginal (DESIGN 11)."""
         if self.smoother.lm_max_iterations is not None:
             return self.smoother.lm_max_iterations
-        return 1 if self.output.publish == "lagged" else 10
+        return 10
 
     def with_mode(self, mode: str) -> "VoConfig":
         """A copy with another mode (validated)."""

@@ -44,6 +44,37 @@ def joint_loop_error(
     return residual, [by_predicted @ predicted_from_tractor, log_jacobian @ between_trailer, by_predicted[:, 2:3].copy()]
 
 
+def _rz(angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """``Rz(angle)`` and its derivative by ``angle`` (3, 3)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.array([[-s, -c, 0.0], [c, -s, 0.0], [0.0, 0.0, 0.0]])
+
+
+def fifth_wheel_error(
+    T_world_tractor: gtsam.Pose3,
+    T_world_trailer: gtsam.Pose3,
+    hitch_angle: float,
+    jacobians: bool = False,
+) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """The joint loop residual expressed in the tractor's axes, ``blockdiag(Rz(theta), Rz(theta)) e``
+    (6,), so that each component is one degree of freedom of a fifth wheel: ``[0]`` roll about the
+    tractor's x axis (rigid), ``[1]`` pitch of the plate about the tractor's y axis (free: a noise
+    model with a wide sigma there), ``[2]`` yaw beyond ``theta``, ``[3:]`` king-pin separation (m).
+    With ``R_tractor_trailer = Ry(beta) Rz(theta)`` (the plate pitched by ``beta``, the trailer
+    turned by ``theta`` on it; paper eqs. (3)-(5) with the general joint rotation ``Q``),
+    ``e_rot = Rz(-theta) beta e_y`` and this residual is exactly ``(0, beta, 0)``.
+    Jacobians: ``B J`` for the poses and ``B J_theta + dB/dtheta e`` for ``theta``."""
+    residual, parts = joint_loop_error(T_world_tractor, T_world_trailer, hitch_angle, jacobians)
+    rotation, derivative = _rz(float(hitch_angle))
+    turned = np.concatenate([rotation @ residual[:3], rotation @ residual[3:]])
+    if not jacobians:
+        return turned, None
+    block = np.zeros((6, 6))
+    block[:3, :3] = block[3:, 3:] = rotation
+    by_theta = block @ parts[2] + np.concatenate([derivative @ residual[:3], derivative @ residual[3:]])[:, None]
+    return turned, [block @ parts[0], block @ parts[1], by_theta]
+
+
 class JointLoopFactor(gtsam.CustomFactor):
     """``Log((T_world_tractor (Rz(theta), 0))^-1 T_world_trailer)`` on keys (Pose3, Pose3, double).
 

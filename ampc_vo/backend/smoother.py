@@ -72,7 +72,8 @@ from ampc_vo.observations import CameraObservations, FrameObservations, match_tr
 from ampc_vo.rig import Camera, Rig
 from factors._custom import POSE, SCALAR
 from factors.epipolar import EpipolarBlock
-from factors.joint_loop import joint_loop_error
+from factors.hitch_limit import HitchLimitFactor
+from factors.joint_loop import fifth_wheel_error
 from factors.nonholonomic import nonholonomic_error
 from factors.planar import planar_motion_error
 from factors.relative_pose import relative_pose_error
@@ -203,6 +204,7 @@ def _pose_sigma_vector(rotation_rad: float, translation_m: float) -> np.ndarray:
 
 
 _IDENTITY_POSE = gtsam.Pose3()
+_HITCH_STOP_NOISE = gtsam.noiseModel.Isotropic.Sigma(1, np.radians(1.0))  # a hard stop: 1 degree
 
 
 class ArticulatedSmoother:
@@ -303,7 +305,7 @@ class ArticulatedSmoother:
         self.timings.append(timing)
         if lagged:
             return leaving
-        return [self._publish(self._window[index], sigma if index == keyframe.index else None) for index in published_indices if index in self._window]
+        return [self._publish(self._window[index], sigma if index == keyframe.index else self._sigma_of(index)) for index in published_indices if index in self._window]
 
     def _recover(self, keyframe: _Keyframe, pending: _Pending, error: RuntimeError) -> None:
         """An ill-conditioned window (e.g. a keyframe whose factors were all rejected): anchor the new
@@ -383,6 +385,7 @@ class ArticulatedSmoother:
         if self.joint:
             pending.insert(A(first.index), float(hitch), first.timestamp)
             pending.graph.add(gtsam.PriorFactorDouble(A(first.index), float(hitch), gtsam.noiseModel.Isotropic.Sigma(1, np.radians(config.hitch_prior_sigma_deg))))
+            self._add_hitch_limit(first.index, pending)
             self._add_joint_loop(first.index, pending)
         else:
             pending.graph.add(gtsam.PriorFactorPose3(Y(first.index), gtsam.Pose3(T_world_trailer), prior))
@@ -416,6 +419,7 @@ class ArticulatedSmoother:
                 pending.insert(A(k), hitch, keyframe.timestamp)
                 pending.insert(Y(k), T_world_tractor @ make_pose(rot_z(hitch), np.zeros(3)), keyframe.timestamp)
                 self._add_joint_loop(k, pending)
+                self._add_hitch_limit(k, pending)
                 sigma = self._hitch_step_sigma(keyframe)
                 pending.graph.add(gtsam.BetweenFactorDouble(A(previous), A(k), 0.0, gtsam.noiseModel.Isotropic.Sigma(1, sigma)))
             else:
@@ -431,16 +435,17 @@ class ArticulatedSmoother:
             own_motion = body == "tractor" or not self.joint
             status = init.tractor_status if body == "tractor" else init.trailer_status
             pair = (key(previous), key(k))
-            if own_motion:
-                planar_sigmas = np.array([np.radians(config.planar_rotation_sigma_deg)] * 2 + [config.planar_height_sigma_m])
-                pending.terms.append(Term(pair, (POSE, POSE), planar_motion_error, planar_sigmas))
+            # planar motion of both bodies: the trailer's pitch is free at the fifth wheel
+            planar_sigmas = np.array([np.radians(config.planar_rotation_sigma_deg)] * 2 + [config.planar_height_sigma_m])
+            pending.terms.append(Term(pair, (POSE, POSE), planar_motion_error, planar_sigmas))
             if standstill:
                 if own_motion:
                     tight = _pose_sigma_vector(np.radians(config.standstill_rotation_sigma_deg), config.standstill_translation_sigma_m)
                     pending.terms.append(Term(pair, (POSE, POSE), partial(relative_pose_error, _IDENTITY_POSE), tight))
                 continue
             if body == "tractor" or self.trailer_nonholonomic:
-                pending.terms.append(Term(pair, (POSE, POSE), partial(nonholonomic_error, axle_x=self.rig.axle_x(body)), np.array([config.nonholonomic_sigma_m]), config.huber_k))
+                pending.terms.append(Term(pair, (POSE, POSE), partial(nonholonomic_error, axle_x=self.rig.axle_x(body)),
+                                          np.array([self._nonholonomic_sigma(body, keyframe, pending)]), config.huber_k))
             linked = self._add_epipolar_factors(body, keyframe, pending, epipolar_blocks)
             if own_motion:
                 # weak prior on the initial motion when it was not estimated; a 3x weaker regulariser
@@ -474,8 +479,13 @@ class ArticulatedSmoother:
         return float(wrap_angle(previous + psi - yaw_of(init.T_tractor)))
 
     def _hitch_step_sigma(self, keyframe: _Keyframe) -> float:
-        """Random-walk sigma of θ between consecutive keyframes: grows with distance and time."""
+        """Random-walk sigma of θ between consecutive keyframes: grows with distance and time; at
+        a standstill the hitch cannot turn (the bodies stand still relative to each other), so
+        θ is held as tightly as the bodies' zero motion, and what the moving keyframes measure
+        later carries back over the standstill."""
         config = self.config.smoother
+        if keyframe.init.tractor_status is MotionStatus.STANDSTILL:
+            return float(np.radians(config.standstill_rotation_sigma_deg))
         variance = (np.radians(config.hitch_random_walk_deg_per_m)) ** 2 * max(keyframe.chord, 1e-3)
         variance += (np.radians(config.hitch_hold_sigma_growth_deg_per_s)) ** 2 * max(keyframe.dt, 1e-3)
         return float(np.sqrt(variance))
@@ -496,10 +506,42 @@ class ArticulatedSmoother:
 
     # ------------------------------------------------------------------ factors
     def _add_joint_loop(self, k: int, pending: _Pending) -> None:
-        """Joint loop ``X(k), Y(k), A(k)`` (paper eqs. (3)-(5)) as a term of the keyframe's stacked factor."""
+        """Joint loop ``X(k), Y(k), A(k)`` (paper eqs. (3)-(5)) as a term of the keyframe's stacked
+        factor, as a fifth wheel couples the bodies: rigid in roll and at the king-pin, free in yaw
+        (``theta``) and nearly free in the plate's pitch (``joint_loop_pitch_sigma_deg``, in the
+        tractor's axes: :func:`factors.joint_loop.fifth_wheel_error`)."""
         config = self.config.smoother
         sigmas = _pose_sigma_vector(np.radians(config.joint_loop_rotation_sigma_deg), config.joint_loop_translation_sigma_m)
-        pending.terms.append(Term((X(k), Y(k), A(k)), (POSE, POSE, SCALAR), joint_loop_error, sigmas))
+        sigmas[1] = np.radians(config.joint_loop_pitch_sigma_deg)
+        pending.terms.append(Term((X(k), Y(k), A(k)), (POSE, POSE, SCALAR), fifth_wheel_error, sigmas))
+
+    def _nonholonomic_sigma(self, body: str, keyframe: _Keyframe, pending: _Pending) -> float:
+        """Sigma (m) of a body's non-holonomic residual over keyframe pair (k-1, k): the lateral
+        offset its axle may take from the circular arc grows with the distance driven, by the slip
+        angle the model misses, over a floor ``nonholonomic_sigma_m``. The slip angle: a base
+        (``*nonholonomic_slip_deg``: axle groups, cross-slope drift, alignment) and tyre slip in
+        proportion to the lateral acceleration ``v * yaw rate`` of the initial motion (slip angle =
+        lateral force / cornering stiffness = (a_y / g) / CC with a truck tyre's cornering coefficient
+        CC ~ 0.1-0.2 per degree, Gillespie, Fundamentals of Vehicle Dynamics, ch. 10: ~0.7 degree
+        per m/s^2, ``nonholonomic_slip_deg_per_mps2``). A fixed sigma in metres lets a short chord take any
+        direction (3 degrees on the 0.4 m of a standing start's first keyframes) and a long one in
+        a turn none."""
+        config = self.config.smoother
+        key = X if body == "tractor" else Y
+        k = keyframe.index
+        T_j_k = relative_pose(self._pose(key(k - 1), pending), self._pose(key(k), pending))
+        axle = np.array([self.rig.axle_x(body), 0.0, 0.0])
+        chord = float(np.linalg.norm(T_j_k[:3, :3] @ axle + T_j_k[:3, 3] - axle))
+        base = config.nonholonomic_slip_deg if body == "tractor" else config.trailer_nonholonomic_slip_deg
+        dt = max(keyframe.dt, 1e-3)
+        lateral_acceleration = abs(chord / dt * yaw_of(T_j_k[:3, :3]) / dt)
+        slip = np.radians(np.hypot(base, config.nonholonomic_slip_deg_per_mps2 * lateral_acceleration))
+        return float(np.hypot(config.nonholonomic_sigma_m, chord * np.tan(slip)))
+
+    def _add_hitch_limit(self, k: int, pending: _Pending) -> None:
+        """The hitch's mechanical range on ``A(k)`` (:mod:`factors.hitch_limit`): the trailer's own
+        measurements cannot tell theta from theta + pi in straight driving."""
+        pending.graph.add(HitchLimitFactor(A(k), float(np.radians(self.config.smoother.hitch_limit_deg)), _HITCH_STOP_NOISE))
 
     def _add_smooth_speed(self, key, keyframe: _Keyframe, pending: _Pending) -> None:
         sigma = self.config.scale.smooth_speed_sigma_mps2
@@ -593,7 +635,9 @@ class ArticulatedSmoother:
                     if index_j.size < config.keyframes.min_tracks:
                         continue
                     bearings_j, bearings_k = first.bearings[index_j], second.bearings[index_k]
-                    keep = self._gate(camera_j, camera_k, bearings_j, bearings_k, T_j_k, gate_px)
+                    T_body_camera_j = self._capture_extrinsic(body, earlier, camera_j, pending)
+                    T_body_camera_k = self._capture_extrinsic(body, keyframe, camera_k, pending)
+                    keep = self._gate(camera_j, camera_k, bearings_j, bearings_k, T_j_k, gate_px, T_body_camera_j, T_body_camera_k)
                     if keep.sum() < config.keyframes.min_tracks:
                         continue
                     bearings_j, bearings_k = bearings_j[keep], bearings_k[keep]
@@ -601,15 +645,42 @@ class ArticulatedSmoother:
                     if bearings_j.shape[0] > cap:
                         chosen = np.sort(self._rng.choice(bearings_j.shape[0], cap, replace=False))
                         bearings_j, bearings_k = bearings_j[chosen], bearings_k[chosen]
-                    correspondences = body_correspondences(camera_j.T_body_camera, bearings_j, bearings_k, camera_k.T_body_camera)
+                    correspondences = body_correspondences(T_body_camera_j, bearings_j, bearings_k, T_body_camera_k)
                     sigma = 0.5 * (self._gec_sigma(camera_j) + self._gec_sigma(camera_k))
                     blocks.append((EpipolarBlock(key(j), key(k), correspondences), sigma))
                     linked_previous |= j == k - 1
         return linked_previous
 
-    def _gate(self, camera_i: Camera, camera_j: Camera, bearings_i: np.ndarray, bearings_j: np.ndarray, T_i_j: np.ndarray, gate_px: float) -> np.ndarray:
-        """Correspondences whose Sampson residual under the initial motion is below ``gate_px``."""
-        residual = gec_sampson(bearings_i @ camera_i.R_body_camera.T, bearings_j @ camera_j.R_body_camera.T, T_i_j[:3, :3], T_i_j[:3, 3], camera_i.center, camera_j.center)
+    def _capture_extrinsic(self, body: str, keyframe: _Keyframe, camera: Camera, pending: _Pending) -> np.ndarray:
+        """``T_body_camera`` of ``camera`` at its own capture time: an unsynchronised camera
+        (``CameraObservations.timestamp``, frames.csv ``<camera>_timestamp``) took its image
+        ``delta`` seconds after the keyframe's time, when the body had moved on. The body pose at
+        ``t_k + delta`` on the constant-velocity arc through the keyframe's motion from its
+        neighbour, ``T_k Exp(delta / dt Log(T_{k-1}^-1 T_k))`` (the window's current poses), turns
+        that into an extrinsic of the keyframe's body pose: ``Exp(delta / dt xi) T_body_camera``."""
+        delta = keyframe.observations.camera_timestamp(camera.name) - keyframe.timestamp
+        if abs(delta) < 1e-6:
+            return camera.T_body_camera
+        key = X if body == "tractor" else Y
+        k = keyframe.index
+        neighbour = self._window.get(k - 1) or self._window.get(k + 1)
+        if neighbour is None or not (pending.values.exists(key(neighbour.index)) or self._estimate.exists(key(neighbour.index))):
+            return camera.T_body_camera
+        T_earlier_later = relative_pose(self._pose(key(min(k, neighbour.index)), pending), self._pose(key(max(k, neighbour.index)), pending))
+        dt = abs(keyframe.timestamp - neighbour.timestamp)
+        if dt <= 0.0:
+            return camera.T_body_camera
+        twist = gtsam.Pose3.Logmap(gtsam.Pose3(T_earlier_later)) / dt
+        return gtsam.Pose3.Expmap(twist * delta).matrix() @ camera.T_body_camera
+
+    def _gate(self, camera_i: Camera, camera_j: Camera, bearings_i: np.ndarray, bearings_j: np.ndarray, T_i_j: np.ndarray, gate_px: float,
+              T_body_camera_i: np.ndarray | None = None, T_body_camera_j: np.ndarray | None = None) -> np.ndarray:
+        """Correspondences whose Sampson residual under the initial motion is below ``gate_px``
+        (extrinsics at the cameras' capture times when given)."""
+        T_body_camera_i = camera_i.T_body_camera if T_body_camera_i is None else T_body_camera_i
+        T_body_camera_j = camera_j.T_body_camera if T_body_camera_j is None else T_body_camera_j
+        residual = gec_sampson(bearings_i @ T_body_camera_i[:3, :3].T, bearings_j @ T_body_camera_j[:3, :3].T, T_i_j[:3, :3], T_i_j[:3, 3],
+                               T_body_camera_i[:3, 3], T_body_camera_j[:3, 3])
         threshold = gate_px / (0.25 * (camera_i.fx + camera_i.fy + camera_j.fx + camera_j.fy))
         return np.abs(residual) < threshold
 
@@ -690,7 +761,7 @@ class ArticulatedSmoother:
                 logger.info("frame %d: %s motion estimated again (was %s)", keyframe.frame, body, previous)
             return
         messages = {
-            MotionStatus.STANDSTILL: "standstill: motion held at zero, hitch angle held with growing sigma",
+            MotionStatus.STANDSTILL: "standstill: motion held at zero, hitch angle held (it cannot turn at rest)",
             MotionStatus.TOO_FEW_TRACKS: "too few tracks: motion predicted (constant velocity), weak prior",
             MotionStatus.SCALE_UNOBSERVABLE: "scale unobservable (straight driving): chord from the smooth-speed prior",
         }

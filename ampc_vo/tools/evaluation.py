@@ -58,6 +58,11 @@ class Metrics:
     hitch_max_deg: float | None
     seconds_per_frame: float | None
     sim3_scale: float = 1.0
+    # honesty of the published hitch sigma: shares of keyframes whose error is within 2 and 3
+    # sigma (a Gaussian: 95.4 % and 99.7 %), and the median sigma
+    hitch_within_2sigma: float | None = None
+    hitch_within_3sigma: float | None = None
+    hitch_sigma_median_deg: float | None = None
 
     def to_dict(self) -> dict:
         return {key: _json_number(value) for key, value in asdict(self).items()}
@@ -156,6 +161,21 @@ def relative_pose_error_percent(truth: PoseTrajectory3D, estimate: PoseTrajector
 
 def hitch_errors(estimate: HitchSeries, truth_timestamps: np.ndarray, truth_angles: np.ndarray, max_diff: float) -> np.ndarray:
     """Wrapped errors (radians) of the estimates that have a truth sample within ``max_diff`` s."""
+    return hitch_matches(estimate, truth_timestamps, truth_angles, max_diff)[0]
+
+
+def sigma_coverage(errors: np.ndarray, sigmas: np.ndarray, factor: float) -> float | None:
+    """Share of estimates whose |error| is at most ``factor`` times their published 1-sigma
+    (an infinite sigma covers anything; a NaN sigma covers nothing)."""
+    if not errors.size:
+        return None
+    with np.errstate(invalid="ignore"):
+        return float(np.mean(np.abs(errors) <= factor * sigmas))
+
+
+def hitch_matches(estimate: HitchSeries, truth_timestamps: np.ndarray, truth_angles: np.ndarray, max_diff: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(errors, matched)``: wrapped errors (radians) of the estimates with a truth sample within
+    ``max_diff`` s, and the boolean mask of those estimates."""
     order = np.argsort(truth_timestamps)
     sorted_times = truth_timestamps[order]
     index = np.clip(np.searchsorted(sorted_times, estimate.timestamps), 1, max(len(sorted_times) - 1, 1))
@@ -163,7 +183,7 @@ def hitch_errors(estimate: HitchSeries, truth_timestamps: np.ndarray, truth_angl
     right = np.clip(index, 0, len(sorted_times) - 1)
     nearest = np.where(np.abs(sorted_times[left] - estimate.timestamps) <= np.abs(sorted_times[right] - estimate.timestamps), left, right)
     matched = np.abs(sorted_times[nearest] - estimate.timestamps) <= max_diff
-    return np.asarray(wrap_angle(estimate.angles[matched] - truth_angles[order][nearest[matched]]), dtype=float)
+    return np.asarray(wrap_angle(estimate.angles[matched] - truth_angles[order][nearest[matched]]), dtype=float), matched
 
 
 def evaluate(
@@ -198,12 +218,15 @@ def evaluate(
         trailer_ate = _ape_rmse(trailer_ref, trailer_est)
         trailer_est_xy, trailer_truth_xy = trailer_est.positions_xyz[:, :2], trailer_ref.positions_xyz[:, :2]
 
-    hitch_rmse = hitch_max = None
+    hitch_rmse = hitch_max = within_2 = within_3 = sigma_median = None
     if hitch is not None and len(hitch) > 0 and truth.hitch_angles is not None:
-        errors = hitch_errors(hitch, truth.timestamps, truth.hitch_angles, max_time_diff)
+        errors, matched = hitch_matches(hitch, truth.timestamps, truth.hitch_angles, max_time_diff)
         if errors.size:
             hitch_rmse = float(np.degrees(np.sqrt(np.mean(errors**2))))
             hitch_max = float(np.degrees(np.max(np.abs(errors))))
+            sigmas = hitch.sigmas[matched]
+            within_2, within_3 = sigma_coverage(errors, sigmas, 2.0), sigma_coverage(errors, sigmas, 3.0)
+            sigma_median = float(np.degrees(np.median(sigmas)))
 
     result = Metrics(
         frames=int(ref.num_poses),
@@ -216,6 +239,9 @@ def evaluate(
         hitch_max_deg=hitch_max,
         seconds_per_frame=None if seconds_per_frame is None else float(seconds_per_frame),
         sim3_scale=float(scale),
+        hitch_within_2sigma=within_2,
+        hitch_within_3sigma=within_3,
+        hitch_sigma_median_deg=sigma_median,
     )
     return Evaluation(
         metrics=result,

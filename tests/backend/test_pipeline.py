@@ -22,12 +22,17 @@ from ampc_vo.sim.simulation import simulate
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture(scope="module")
-def short_dataset(tmp_path_factory):
-    result = simulate(ROOT / "configs" / "sim" / "ci_short.yaml")
-    root = tmp_path_factory.mktemp("ci_short")
+def _simulated_dataset(route: str, tmp_path_factory) -> tuple[Path, object]:
+    """configs/sim/<route>.yaml simulated (bearings) and written as a dataset folder."""
+    result = simulate(ROOT / "configs" / "sim" / f"{route}.yaml")
+    root = tmp_path_factory.mktemp(route)
     write_dataset(root, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory, measurements=result.measurements)
     return root, result
+
+
+@pytest.fixture(scope="module")
+def short_dataset(tmp_path_factory):
+    return _simulated_dataset("ci_short", tmp_path_factory)
 
 
 def test_full_mode_accuracy_and_outputs(short_dataset, tmp_path):
@@ -181,3 +186,32 @@ def test_evaluate_routes_script_writes_the_table(tmp_path):
     assert again.returncode == 0 and (tmp_path / "data" / "ci_short-bearings" / "frames.csv").stat().st_mtime_ns == stamp
     unknown = subprocess.run(command[:-3] + ["--routes", "nowhere"], capture_output=True, text=True, env=env, timeout=300)
     assert unknown.returncode == 2 and "no such route" in unknown.stderr
+
+
+@pytest.fixture(scope="module")
+def standing_start(tmp_path_factory):
+    """configs/sim/ci_standing_start.yaml: 1.5 s at rest (hitch unobservable), then driving off."""
+    return _simulated_dataset("ci_standing_start", tmp_path_factory)
+
+
+@pytest.mark.parametrize("publish", ["lagged", "latest"])
+def test_standing_start_hitch_is_right_or_honestly_uncertain(standing_start, tmp_path, publish):
+    """Issue 16 (honest uncertainty): before the truck moves the hitch is published with the
+    prior's sigma (tens of degrees), never a confident guess; once it moves the estimate converges,
+    and in lagged mode the recovered value carries back over the standstill. Measured before the
+    fix: hitch max 26-136 deg with a 1-5 deg sigma (lagged: one LM step per update; a 2 cm
+    non-holonomic sigma on 0.4 m chords; the trailer's theta + 180 twin)."""
+    root, result = standing_start
+    config = config_from_dict({"output": {"progress": False, "publish": publish}})
+    run_on_frames(result.rig, config, result.measurements.frames(result.rig), tmp_path, total=len(result.trajectory))
+    metrics = evaluate_output(tmp_path, load_groundtruth(root)).metrics
+    assert metrics.hitch_within_2sigma >= 0.95 and metrics.hitch_within_3sigma >= 0.99
+    hitch = read_hitch(tmp_path / "hitch.csv")
+    at_rest = hitch.timestamps < 1.4
+    moving = hitch.timestamps > 4.0
+    if publish == "latest":
+        assert np.all(np.degrees(hitch.sigmas[at_rest]) > 10.0)       # nothing measured yet: the prior
+        assert metrics.hitch_max_deg < 2.0
+    else:
+        assert metrics.hitch_max_deg < 1.0                             # carried back over the standstill
+    assert np.median(np.degrees(hitch.sigmas[moving])) < 0.5

@@ -70,3 +70,37 @@ def test_linearize_shape_and_guards():
         JointLoopFactor(0, 1, 1, NOISE)
     with pytest.raises(ValueError, match="key"):
         JointLoopFactor(0, 1, 2.5, NOISE)
+
+
+@pytest.mark.parametrize("hitch_angle", [0.0, 0.4, -1.2])
+@pytest.mark.parametrize("plate_pitch", [0.0, 0.05, -0.12])
+def test_fifth_wheel_residual_isolates_the_plate_pitch(hitch_angle, plate_pitch):
+    """A trailer pitched on the fifth wheel (``R_tractor_trailer = Ry(beta) Rz(theta)``) gives the
+    residual ``(0, beta, 0, 0, 0, 0)``: only the free pitch component, whatever the hitch angle."""
+    from factors.joint_loop import fifth_wheel_error
+
+    tractor = random_pose(np.random.default_rng(3), 0.3, 10.0)
+    trailer = tractor.compose(gtsam.Pose3(gtsam.Rot3.Ry(plate_pitch), np.zeros(3))).compose(hitch(hitch_angle))
+    error, _ = fifth_wheel_error(tractor, trailer, hitch_angle)
+    np.testing.assert_allclose(error, [0.0, plate_pitch, 0.0, 0.0, 0.0, 0.0], atol=1e-12)
+    rolled = tractor.compose(gtsam.Pose3(gtsam.Rot3.Rx(0.02), np.zeros(3))).compose(hitch(hitch_angle))
+    error, _ = fifth_wheel_error(tractor, rolled, hitch_angle)
+    np.testing.assert_allclose(error[:3], [0.02, 0.0, 0.0], atol=1e-9)  # roll stays in component 0
+
+
+@pytest.mark.parametrize("hitch_angle", [0.0, 0.4, -1.2, 3.0])
+@pytest.mark.parametrize("offset_scale", [0.0, 0.05, 1.0])
+def test_fifth_wheel_jacobians_match_numerical_derivatives(hitch_angle, offset_scale):
+    from factors.joint_loop import fifth_wheel_error
+
+    rng = np.random.default_rng(int(1e3 * abs(hitch_angle)) + int(10 * offset_scale) + 7)
+    tractor = random_pose(rng, 1.5, 10.0)
+    trailer = tractor.compose(hitch(hitch_angle)).compose(gtsam.Pose3.Expmap(rng.normal(0.0, offset_scale, 6)))
+
+    def residual(tractor_pose, trailer_pose, angle):
+        return fifth_wheel_error(tractor_pose, trailer_pose, as_float(angle))[0]
+
+    _, (by_tractor, by_trailer, by_hitch) = fifth_wheel_error(tractor, trailer, hitch_angle, jacobians=True)
+    assert_jacobian_close(by_tractor, numericalDerivative31(residual, tractor, trailer, hitch_angle))
+    assert_jacobian_close(by_trailer, numericalDerivative32(residual, tractor, trailer, hitch_angle))
+    assert_jacobian_close(by_hitch, numericalDerivative33(residual, tractor, trailer, hitch_angle))
