@@ -41,6 +41,19 @@ tractor axle (its velocity direction ``phi``, ``phi' = v kappa``); the heading i
 
 (the trailer axle's velocity is along ``psi_B + beta_B``; solved by fixed-point iteration), with
 ``v_hitch = v u(phi) - s_A psi_A' n(psi_A)``. With ``slip = 0`` both reduce to the ODE above.
+On a cross-slope rising ``dh/dn`` to the left the tyres also carry gravity's lateral component, so
+``a_lat`` becomes ``a_lat + g dh/dn`` at each axle: the vehicle crabs and drifts downhill.
+
+**Trailer axle groups** (:class:`AxleGroup`): a tandem or tridem steers about an effective axle
+``L_eq`` behind the king-pin that moves with the turn radius; ``s_B`` above becomes ``L_eq``
+(the rig's ``axle_x`` stays the group centre: a model error for the estimator, as on real trailers).
+
+**Reversing.** On ``reverse`` segments ``v < 0`` and the ODE above is open-loop unstable
+(``theta`` grows with rate ``|v| / s_B``), so a driver model steers: the segment's curvature is the
+one commanded to the *trailer*, and the tractor's curvature is chosen by feedback linearisation so
+that the hitch angle converges to the steady-state angle of that trailer curvature
+(:func:`_derivative_reverse`, :func:`hitch_angle_for_trailer_curvature`). Reverse segments use
+ideal rolling (no slip).
 """
 from __future__ import annotations
 
@@ -86,7 +99,7 @@ _SLIP_DIFFERENCE_M = 0.05  # arc-length step of the central difference d(v^2 kap
 _SLIP_ITERATIONS = 4       # fixed-point iterations of the trailer's slip angle (|beta_B| << 1: converges fast)
 GRAVITY = 9.81
 TRACTOR_MAX_CURVATURE = 1.0 / 5.5   # 1/m at the tractor's rear axle: full steering lock of a 6x4 tractor
-REVERSE_GAIN = 2.0                  # closed-loop hitch convergence rate, in units of |v| / s_B
+REVERSE_GAIN = 5.0                  # closed-loop hitch convergence rate, in units of |v| / s_B (settles within ~s_B / 2)
 
 
 LateralSlope = Callable[[float, float], float]  # (station m, heading rad) -> rise per metre to the left
@@ -321,6 +334,8 @@ def simulate_kinematics(
     standing = [bool(pending_stops) and pending_stops[0][0] <= 0.0]
     ends_at_rest = route.segments[-1].kind == "stop"  # then the vehicle stays where it stopped
     hold_steps = 0  # integration steps left standing still at a stop
+    if standing[0]:  # a standing start: hold before the first step
+        hold_steps = int(round(pending_stops.pop(0)[1] / dt))
     while True:
         if frame_count is not None and len(states) >= frame_count:
             break

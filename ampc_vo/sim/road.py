@@ -234,20 +234,23 @@ class RoadConfig:
         lateral = -self.lane_offset_m
         slope_x, slope_y = self.plane_slope
         has_profile = self.has_profile
+        crown, maximum = profile.crown, profile.max_superelevation
+        minimum_radius = profile.design_speed**2 / (GRAVITY * (maximum + SIDE_FRICTION))
+        side = math.copysign(1.0, lateral) if lateral != 0.0 else 0.0
 
-        def slope(station: float, heading: float) -> float:
-            value = -slope_x * math.sin(heading) + slope_y * math.cos(heading)
+        def slope(station: float, heading: float) -> float:  # scalar math: called 4 times per integration step
+            value = -slope_x * math.sin(heading) + slope_y * math.cos(heading) if slope_x or slope_y else 0.0
             if has_profile:
-                bank = float(profile.superelevation(curvature(max(station, 0.0))))
-                crown = profile.crown * max(0.0, 1.0 - abs(bank) / profile.crown) if profile.crown > 0.0 else 0.0
-                value += -bank - crown * math.copysign(1.0, lateral) if lateral != 0.0 else -bank
+                bank = maximum * min(max(curvature(max(station, 0.0)) * minimum_radius, -1.0), 1.0)
+                value += -bank - (crown * max(0.0, 1.0 - abs(bank) / crown) * side if crown > 0.0 else 0.0)
             return value
 
         return slope
 
     def surface(self, path_xy: np.ndarray, station: np.ndarray, curvature: np.ndarray, edge_m: float) -> RoadSurface:
-        """The :class:`RoadSurface` along the driven path (N, 2) with its stations and curvatures;
-        bumps are placed at their station on the road (``lateral`` from the road's centre)."""
+        """The :class:`RoadSurface` along a design path (N, 2) with its stations and curvatures
+        (``routes.Route.design_path``), the road's centre ``lane_offset_m`` left of it; bumps are
+        placed at their station on the road (``lateral`` from the road's centre)."""
         centerline = Centerline2D.from_path(path_xy, station, curvature, self.lane_offset_m)
         bumps = []
         for at, lateral, length, width, height in self.bumps:

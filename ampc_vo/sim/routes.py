@@ -23,7 +23,7 @@ acceleration and braking as trucks drive (a loaded truck accelerates at ~0.5-1 m
 up to 3-4 m/s^2): ``v(s) = min_j env_j(s)`` over the segments ``j`` with ``env_j = v_j`` on the
 segment, ``sqrt(v_j^2 + 2 b (start_j - s))`` before it and ``sqrt(v_j^2 + 2 a (s - end_j))``
 after it (the closed form of the forward-backward pass of a velocity planner; stops are segments
-of speed 0), tabulated every 2 cm.
+of speed 0), tabulated as ``v^2`` every 2 cm (linear in ``s`` at constant acceleration).
 
 Any segment may carry ``reverse: true``: it is driven backwards (negative axle speed). Its
 curvature is then the curvature commanded for the **trailer** axle (``kinematics`` steers the
@@ -117,7 +117,7 @@ class Route:
     _TABLE_STEP_M = 0.02
 
     def _speed_table(self) -> np.ndarray:
-        """Acceleration-limited speed every 2 cm over the route (module docstring)."""
+        """Squared acceleration-limited speed every 2 cm over the route (module docstring)."""
         s = np.arange(0.0, self.length + 2.0 * self._TABLE_STEP_M, self._TABLE_STEP_M)
         speed = np.full(s.shape, np.inf)
         acceleration, braking = float(self.acceleration), self.deceleration
@@ -127,7 +127,7 @@ class Route:
             envelope = np.where(s < start, np.sqrt(target**2 + 2.0 * braking * np.maximum(start - s, 0.0)),
                                 np.where(s > end, np.sqrt(target**2 + 2.0 * acceleration * np.maximum(s - end, 0.0)), target))
             speed = np.minimum(speed, envelope)
-        return np.maximum(speed, CREEP_SPEED)
+        return np.maximum(speed, CREEP_SPEED) ** 2  # v^2: linear in s at constant acceleration, so interpolation is exact
 
     def is_reverse(self, s: float) -> bool:
         """True where the route is driven backwards (beyond the end: like the last segment)."""
@@ -187,12 +187,28 @@ class Route:
         return target
 
 
+    def design_path(self, start_xy: tuple[float, float], extension_m: float, step_m: float = 0.25) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The road's design line: the rear-axle path of the route's curvature with every
+        ``lane_change`` flattened to a straight (a lane change moves the vehicle, not the road),
+        starting at ``start_xy`` heading +x and extended straight ``extension_m`` before and after.
+        Returns points (N, 2), station (N,: route arc length, negative before the start) and
+        curvature (N,). Heading and position are integrated with the trapezoidal rule."""
+        station = np.arange(-extension_m, self.length + extension_m + 1e-9, step_m)
+        curvature = np.array([0.0 if not 0.0 <= s < self.length or self.segments[self._locate(s)].kind == "lane_change" else self.curvature(s)
+                              for s in station])
+        heading = np.concatenate([[0.0], np.cumsum(0.5 * (curvature[1:] + curvature[:-1]) * step_m)])
+        heading -= np.interp(0.0, station, heading)
+        direction = np.column_stack([np.cos(heading), np.sin(heading)])
+        points = np.concatenate([[[0.0, 0.0]], np.cumsum(0.5 * (direction[1:] + direction[:-1]) * step_m, axis=0)])
+        points += np.asarray(start_xy) - np.array([np.interp(0.0, station, points[:, axis]) for axis in range(2)])
+        return points, station, curvature
+
     def _tabulated(self, s: float) -> float:
         table = self._table  # type: ignore[attr-defined]
         position = min(max(s, 0.0), self.length + self._TABLE_STEP_M) / self._TABLE_STEP_M
         index = min(int(position), len(table) - 2)
         fraction = position - index
-        return float(table[index] + (table[index + 1] - table[index]) * fraction)
+        return math.sqrt(table[index] + (table[index + 1] - table[index]) * fraction)
 
 
 # ---------------------------------------------------------------------- parsing

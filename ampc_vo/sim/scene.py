@@ -17,7 +17,7 @@ logger = logging.getLogger(__name__)
 if TYPE_CHECKING:  # pragma: no cover
     from ampc_vo.io.groundtruth import Trajectory
     from ampc_vo.sim.config import SceneConfig
-    from ampc_vo.sim.road import RoadSurface
+    from ampc_vo.sim.road import Centerline2D, RoadSurface
 
 QUAD_KINDS = ("road", "ground", "facade", "box", "pole", "marker")
 
@@ -110,6 +110,15 @@ def route_centerline(T_world_tractor: np.ndarray, extension_m: float, step_m: fl
     tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
     normals = np.cross(_UP, tangents)
     return Centerline(points, tangents, normals, samples - extension_m)
+
+
+def _road_centerline(line: "Centerline2D", start: float, stop: float, step_m: float = _ROAD_STEP_M) -> Centerline:
+    """A scene :class:`Centerline` (every ~2 m, z = 0) along a road's design line between two stations."""
+    samples = np.linspace(start, stop, max(int(np.ceil((stop - start) / step_m)), 1) + 1)
+    points = np.column_stack([np.interp(samples, line.station, line.points[:, axis]) for axis in range(2)] + [np.zeros(len(samples))])
+    tangents = np.gradient(points, axis=0)
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    return Centerline(points, tangents, np.cross(_UP, tangents), samples)
 
 
 def swept_path_points(T_world_tractor: np.ndarray, T_world_trailer: np.ndarray, centerline: Centerline | None = None) -> np.ndarray:
@@ -235,6 +244,9 @@ def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "Sce
 
     config = SceneConfig() if config is None else config
     centerline = route_centerline(trajectory.T_world_tractor, config.extension_m)
+    if road is not None and road.centerline is not None:  # the road's own design line (lane changes do not move it)
+        end = float(trajectory.arc_length[-1]) if trajectory.arc_length is not None else float(road.centerline.station[-1])
+        centerline = _road_centerline(road.centerline, -config.extension_m, end + config.extension_m)
     corridor = cKDTree(swept_path_points(trajectory.T_world_tractor, trajectory.T_world_trailer, centerline))
     clearance = config.clearance + 0.5  # margin for the sampling of the corridor points
     half_road = config.road_width / 2.0
@@ -243,7 +255,7 @@ def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "Sce
     grass_z = _GRASS_Z
     centre = 0.0
     if road is not None:
-        centre = road.lane_offset_m
+        centre = road.lane_offset_m if road.centerline is None else 0.0
         grass_z = float(np.min(road.height(centerline.points[:, :2]))) - 1.0
     quads: list[Quad] = [Quad(np.array([low[0], low[1], grass_z]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), float(high[0] - low[0]), float(high[1] - low[1]), "ground", "grass", 4.0)]
     quads += _strip_quads(centerline, centre - half_road, centre + half_road, _ROAD_Z, "road", "asphalt", 4.0, road)

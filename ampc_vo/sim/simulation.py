@@ -395,8 +395,8 @@ def simulate_truth(config: SimulationConfig, rig: Rig) -> tuple[Trajectory, Road
     if not tilted and not road_config.bumps:
         road = FLAT_ROAD
     else:
-        axle_xy = planar.T_world_tractor[:, :2, 3] + tractor_axle_x * planar.T_world_tractor[:, :2, 0]
-        road = road_config.surface(axle_xy, planar.arc_length, planar.curvature, config.scene.road_width / 2.0 + config.scene.shoulder_width)
+        path, station, curvature = config.route.design_path((tractor_axle_x, 0.0), config.scene.extension_m + config.scene.ground_margin_m)
+        road = road_config.surface(path, station, curvature, config.scene.road_width / 2.0 + config.scene.shoulder_width)
     if road.is_flat and not vehicle.moves_bodies:
         lifted_tractor, lifted_trailer = planar.T_world_tractor.copy(), planar.T_world_trailer.copy()
         lifted_tractor[:, 2, 3] += rig.hitch_height
