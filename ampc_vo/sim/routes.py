@@ -18,14 +18,29 @@ Each segment has a length (metres), a curvature profile ``kappa(s)`` over its lo
   the same way (the standstill itself is timed by ``kinematics.simulate_kinematics``).
 
 Speed changes between segments ramp linearly over ``speed_ramp_m`` metres after the boundary.
+With ``acceleration`` set (realistic driving, issue 13) the speed is instead limited by constant
+acceleration and braking as trucks drive (a loaded truck accelerates at ~0.5-1 m/s^2 and brakes at
+up to 3-4 m/s^2): ``v(s) = min_j env_j(s)`` over the segments ``j`` with ``env_j = v_j`` on the
+segment, ``sqrt(v_j^2 + 2 b (start_j - s))`` before it and ``sqrt(v_j^2 + 2 a (s - end_j))``
+after it (the closed form of the forward-backward pass of a velocity planner; stops are segments
+of speed 0), tabulated as ``v^2`` every 2 cm (linear in ``s`` at constant acceleration).
+
+Any segment may carry ``reverse: true``: it is driven backwards (negative axle speed). Its
+curvature is then the curvature commanded for the **trailer** axle (``kinematics`` steers the
+tractor with a stabilising controller so that the trailer follows it, as a driver reversing to a
+dock does); a stop of ``direction_change_pause_s`` is inserted between segments of opposite
+direction unless one is there.
 Route segments are built from YAML (see ``sim_config``); errors name the file and the field.
 """
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
 
 from ampc_vo.errors import ConfigError
 
@@ -48,6 +63,7 @@ class Segment:
     offset: float = 0.0         # lane_change: lateral offset (m)
     max_curvature: float = 0.0  # s_curve
     duration: float = 0.0       # stop: standstill time (s)
+    reverse: bool = False       # driven backwards; the curvature is the trailer's (module docstring)
 
     def curvature(self, s: float) -> float:
         """Curvature (1/m) at local arc length ``s`` in [0, length]."""
@@ -82,6 +98,8 @@ class Route:
     segments: tuple[Segment, ...]
     speed_ramp_m: float = 10.0
     stop_deceleration: float = 1.0
+    acceleration: float | None = None   # m/s^2: acceleration-limited profile (module docstring); None: legacy ramps
+    deceleration: float = 2.5           # m/s^2: braking of the acceleration-limited profile
 
     def __post_init__(self) -> None:
         starts, total, stops = [], 0.0, []
@@ -93,6 +111,29 @@ class Route:
         object.__setattr__(self, "_starts", starts)
         object.__setattr__(self, "_length", total)
         object.__setattr__(self, "_stops", tuple(stops))
+        object.__setattr__(self, "_any_reverse", any(segment.reverse for segment in self.segments))
+        object.__setattr__(self, "_table", self._speed_table() if self.acceleration is not None else None)
+
+    _TABLE_STEP_M = 0.02
+
+    def _speed_table(self) -> np.ndarray:
+        """Squared acceleration-limited speed every 2 cm over the route (module docstring)."""
+        s = np.arange(0.0, self.length + 2.0 * self._TABLE_STEP_M, self._TABLE_STEP_M)
+        speed = np.full(s.shape, np.inf)
+        acceleration, braking = float(self.acceleration), self.deceleration
+        for start, segment in zip(self._starts, self.segments):  # type: ignore[attr-defined]
+            end = start + segment.length
+            target = 0.0 if segment.kind == "stop" else segment.speed
+            envelope = np.where(s < start, np.sqrt(target**2 + 2.0 * braking * np.maximum(start - s, 0.0)),
+                                np.where(s > end, np.sqrt(target**2 + 2.0 * acceleration * np.maximum(s - end, 0.0)), target))
+            speed = np.minimum(speed, envelope)
+        return np.maximum(speed, CREEP_SPEED) ** 2  # v^2: linear in s at constant acceleration, so interpolation is exact
+
+    def is_reverse(self, s: float) -> bool:
+        """True where the route is driven backwards (beyond the end: like the last segment)."""
+        if not self._any_reverse:  # type: ignore[attr-defined]
+            return False
+        return self.segments[self._locate(min(s, self.length))].reverse
 
     @property
     def stops(self) -> tuple[tuple[float, float], ...]:
@@ -119,6 +160,8 @@ class Route:
         start = self._starts[index]  # type: ignore[attr-defined]
         segment = self.segments[index]
         curvature = segment.curvature(s - start) if s < self.length else 0.0
+        if self._table is not None:  # type: ignore[attr-defined]
+            return self._tabulated(s), curvature
         if not self._stops and (index == 0 or self.speed_ramp_m <= 0.0 or s - start >= min(self.speed_ramp_m, segment.length)):  # type: ignore[attr-defined]
             return segment.speed, curvature
         return self.speed(s), curvature
@@ -126,7 +169,10 @@ class Route:
     def speed(self, s: float) -> float:
         """Speed (m/s) at arc length ``s``: each segment's speed, ramped linearly over
         ``speed_ramp_m`` after a boundary where it changes, and limited by the braking and
-        acceleration envelope ``max(sqrt(2 a |s - s_stop|), CREEP_SPEED)`` around stops."""
+        acceleration envelope ``max(sqrt(2 a |s - s_stop|), CREEP_SPEED)`` around stops; with
+        ``acceleration`` set, the acceleration-limited profile of the module docstring."""
+        if self._table is not None:  # type: ignore[attr-defined]
+            return self._tabulated(s)
         index = self._locate(min(s, self.length))
         target = self.segments[index].speed
         if index > 0 and self.speed_ramp_m > 0.0:
@@ -139,6 +185,30 @@ class Route:
             envelope = max(math.sqrt(2.0 * self.stop_deceleration * abs(s - position)), CREEP_SPEED)
             target = min(target, envelope)
         return target
+
+
+    def design_path(self, start_xy: tuple[float, float], extension_m: float, step_m: float = 0.25) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The road's design line: the rear-axle path of the route's curvature with every
+        ``lane_change`` flattened to a straight (a lane change moves the vehicle, not the road),
+        starting at ``start_xy`` heading +x and extended straight ``extension_m`` before and after.
+        Returns points (N, 2), station (N,: route arc length, negative before the start) and
+        curvature (N,). Heading and position are integrated with the trapezoidal rule."""
+        station = np.arange(-extension_m, self.length + extension_m + 1e-9, step_m)
+        curvature = np.array([0.0 if not 0.0 <= s < self.length or self.segments[self._locate(s)].kind == "lane_change" else self.curvature(s)
+                              for s in station])
+        heading = np.concatenate([[0.0], np.cumsum(0.5 * (curvature[1:] + curvature[:-1]) * step_m)])
+        heading -= np.interp(0.0, station, heading)
+        direction = np.column_stack([np.cos(heading), np.sin(heading)])
+        points = np.concatenate([[[0.0, 0.0]], np.cumsum(0.5 * (direction[1:] + direction[:-1]) * step_m, axis=0)])
+        points += np.asarray(start_xy) - np.array([np.interp(0.0, station, points[:, axis]) for axis in range(2)])
+        return points, station, curvature
+
+    def _tabulated(self, s: float) -> float:
+        table = self._table  # type: ignore[attr-defined]
+        position = min(max(s, 0.0), self.length + self._TABLE_STEP_M) / self._TABLE_STEP_M
+        index = min(int(position), len(table) - 2)
+        fraction = position - index
+        return math.sqrt(table[index] + (table[index + 1] - table[index]) * fraction)
 
 
 # ---------------------------------------------------------------------- parsing
@@ -173,10 +243,17 @@ def segment_from_dict(spec: Any, default_speed: float, where: str, source: str) 
     kind = spec.get("type")
     if kind not in SEGMENT_KINDS:
         raise ConfigError(f"{source}: {where}.type: unknown segment type {kind!r} (expected one of {SEGMENT_KINDS})")
-    unknown = set(spec) - _ALLOWED_KEYS[kind] - {"type", "speed"}
+    unknown = set(spec) - _ALLOWED_KEYS[kind] - {"type", "speed", "reverse"}
     if unknown:
         raise ConfigError(f"{source}: {where}: unknown field(s) {sorted(unknown)} for a {kind} segment")
     speed = _number(spec, "speed", where, source, default=default_speed, positive=True)
+    reverse = spec.get("reverse", False)
+    if not isinstance(reverse, bool):
+        raise ConfigError(f"{source}: {where}.reverse: expected true or false, got {reverse!r}")
+    if reverse:
+        if kind == "stop":
+            raise ConfigError(f"{source}: {where}.reverse: a stop has no direction")
+        return dataclasses.replace(segment_from_dict({key: value for key, value in spec.items() if key != "reverse"}, default_speed, where, source), reverse=True)
     if kind == "stop":
         duration = _number(spec, "duration", where, source)
         if duration < 0.0:
@@ -207,9 +284,17 @@ def segment_from_dict(spec: Any, default_speed: float, where: str, source: str) 
     return Segment("s_curve", length, speed, max_curvature=_number(spec, "max_curvature", where, source))
 
 
-def route_from_list(raw: Any, default_speed: float, source: str, field_name: str = "segments", speed_ramp_m: float = 10.0) -> Route:
-    """Parse the YAML ``segments`` list into a :class:`Route`."""
+def route_from_list(raw: Any, default_speed: float, source: str, field_name: str = "segments", speed_ramp_m: float = 10.0,
+                    acceleration: float | None = None, deceleration: float = 2.5, direction_change_pause_s: float = 1.0) -> Route:
+    """Parse the YAML ``segments`` list into a :class:`Route` (a stop is inserted at every change of
+    driving direction that has none, module docstring)."""
     if not isinstance(raw, list) or not raw:
         raise ConfigError(f"{source}: {field_name}: expected a non-empty list of segments")
-    segments = tuple(segment_from_dict(spec, default_speed, f"{field_name}[{index}]", source) for index, spec in enumerate(raw))
-    return Route(segments, speed_ramp_m=speed_ramp_m)
+    parsed = [segment_from_dict(spec, default_speed, f"{field_name}[{index}]", source) for index, spec in enumerate(raw)]
+    segments: list[Segment] = []
+    for segment in parsed:
+        moving = [previous for previous in segments if previous.kind != "stop"]
+        if segment.kind != "stop" and moving and moving[-1].reverse != segment.reverse and segments[-1].kind != "stop":
+            segments.append(Segment("stop", 0.0, segment.speed, duration=direction_change_pause_s))
+        segments.append(segment)
+    return Route(tuple(segments), speed_ramp_m=speed_ramp_m, acceleration=acceleration, deceleration=deceleration)

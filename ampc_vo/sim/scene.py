@@ -17,6 +17,7 @@ logger = logging.getLogger(__name__)
 if TYPE_CHECKING:  # pragma: no cover
     from ampc_vo.io.groundtruth import Trajectory
     from ampc_vo.sim.config import SceneConfig
+    from ampc_vo.sim.road import Centerline2D, RoadSurface
 
 QUAD_KINDS = ("road", "ground", "facade", "box", "pole", "marker")
 
@@ -111,6 +112,15 @@ def route_centerline(T_world_tractor: np.ndarray, extension_m: float, step_m: fl
     return Centerline(points, tangents, normals, samples - extension_m)
 
 
+def _road_centerline(line: "Centerline2D", start: float, stop: float, step_m: float = _ROAD_STEP_M) -> Centerline:
+    """A scene :class:`Centerline` (every ~2 m, z = 0) along a road's design line between two stations."""
+    samples = np.linspace(start, stop, max(int(np.ceil((stop - start) / step_m)), 1) + 1)
+    points = np.column_stack([np.interp(samples, line.station, line.points[:, axis]) for axis in range(2)] + [np.zeros(len(samples))])
+    tangents = np.gradient(points, axis=0)
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    return Centerline(points, tangents, np.cross(_UP, tangents), samples)
+
+
 def swept_path_points(T_world_tractor: np.ndarray, T_world_trailer: np.ndarray, centerline: Centerline | None = None) -> np.ndarray:
     """2-D points (N, 2) on the centre lines of both bodies over the whole trajectory (and the
     extended road, if given): everything within the clearance of them is the vehicle's corridor."""
@@ -124,8 +134,16 @@ def swept_path_points(T_world_tractor: np.ndarray, T_world_trailer: np.ndarray, 
     return np.concatenate(parts)
 
 
-def _strip_quads(centerline: Centerline, lateral_from: float, lateral_to: float, z: float, kind: str, texture: str, texture_scale: float) -> list[Quad]:
-    """Rectangles covering the band ``lateral_from..lateral_to`` (m, left positive) along the centre line."""
+def _strip_quads(centerline: Centerline, lateral_from: float, lateral_to: float, z: float, kind: str, texture: str, texture_scale: float,
+                 road: "RoadSurface | None" = None) -> list[Quad]:
+    """Rectangles covering the band ``lateral_from..lateral_to`` (m, left positive) along the centre line.
+
+    On a 3D road (``road`` given) each rectangle is tilted onto the surface: ``axis_u`` along the
+    chord between the surface points at the band's middle, ``axis_v`` across to the surface at the
+    band's far edge (orthogonalised), raised ``z`` plus the mean of the surface's deviation from that
+    plane across the band (a crowned road deviates from one plane by up to ``crown * width / 4``)."""
+    if road is not None:
+        return _tilted_strip_quads(centerline, lateral_from, lateral_to, z, kind, texture, texture_scale, road)
     quads = []
     for index in range(len(centerline.points) - 1):
         start, stop = centerline.points[index], centerline.points[index + 1]
@@ -140,6 +158,38 @@ def _strip_quads(centerline: Centerline, lateral_from: float, lateral_to: float,
     return quads
 
 
+def _tilted_strip_quads(centerline: Centerline, lateral_from: float, lateral_to: float, z: float, kind: str, texture: str,
+                        texture_scale: float, road: "RoadSurface") -> list[Quad]:
+    """:func:`_strip_quads` on the road surface (vectorised over the strip's pieces)."""
+    points, normals = centerline.points[:, :2], centerline.normals[:, :2]
+    chord = np.diff(points, axis=0)
+    length = np.linalg.norm(chord, axis=1)
+    keep = length > 1e-6
+    start, chord, length, normal = points[:-1][keep], chord[keep], length[keep], normals[:-1][keep]
+    direction = chord / length[:, None]
+    middle = 0.5 * (lateral_from + lateral_to)
+    begin = start - _ROAD_OVERLAP_M * direction
+    end = start + (length + _ROAD_OVERLAP_M)[:, None] * direction
+    across = np.linspace(lateral_from, lateral_to, 5)
+    samples = begin[:, None, :] + across[None, :, None] * normal[:, None, :]          # (P, 5, 2)
+    heights = road.height(samples)
+    begin_mid = np.column_stack([begin + middle * normal, road.height(begin + middle * normal)])
+    end_mid = np.column_stack([end + middle * normal, road.height(end + middle * normal)])
+    axis_u = end_mid - begin_mid
+    axis_u /= np.linalg.norm(axis_u, axis=1, keepdims=True)
+    edge = np.column_stack([begin + lateral_to * normal, heights[:, -1]]) - np.column_stack([begin + lateral_from * normal, heights[:, 0]])
+    axis_v = edge - np.einsum("ij,ij->i", edge, axis_u)[:, None] * axis_u
+    axis_v /= np.linalg.norm(axis_v, axis=1, keepdims=True)
+    # the plane through the band's two edges at the start; shift it by the mean deviation across
+    plane = heights[:, :1] + (heights[:, -1:] - heights[:, :1]) * (across - lateral_from)[None, :] / (lateral_to - lateral_from)
+    lift = np.mean(heights - plane, axis=1) + z
+    origin = np.column_stack([begin + lateral_from * normal, heights[:, 0] + lift])
+    width = np.linalg.norm(np.column_stack([end - begin, end_mid[:, 2] - begin_mid[:, 2]]), axis=1)
+    height = np.linalg.norm(edge, axis=1)
+    return [Quad(origin[index], axis_u[index], axis_v[index], float(width[index]), float(height[index]), kind, texture, texture_scale)
+            for index in range(len(origin))]
+
+
 def _clear(points_2d: np.ndarray, tree, clearance: float) -> bool:
     distances, _ = tree.query(points_2d)
     return bool(np.min(distances) >= clearance)
@@ -150,12 +200,13 @@ def _segment_samples(start: np.ndarray, stop: np.ndarray, spacing: float = 0.5) 
     return start[None, :2] + np.linspace(0.0, 1.0, count)[:, None] * (stop - start)[None, :2]
 
 
-def box_quads(center: np.ndarray, yaw: float, size: tuple[float, float, float], kind: str, texture: str, texture_scale: float = 2.0) -> list[Quad]:
-    """Four outward-facing sides and the top of an upright box standing on z = 0."""
+def box_quads(center: np.ndarray, yaw: float, size: tuple[float, float, float], kind: str, texture: str, texture_scale: float = 2.0,
+              base_z: float = 0.0) -> list[Quad]:
+    """Four outward-facing sides and the top of an upright box standing on ``z = base_z``."""
     length, width, height = size
     x_axis = np.array([np.cos(yaw), np.sin(yaw), 0.0])
     y_axis = np.cross(_UP, x_axis)
-    base = np.array([center[0], center[1], 0.0])
+    base = np.array([center[0], center[1], base_z])
     quads = []
     for outward, half_normal, side in ((x_axis, length / 2, width), (-x_axis, length / 2, width), (y_axis, width / 2, length), (-y_axis, width / 2, length)):
         axis_u = np.cross(_UP, outward)  # so that axis_u x up = outward normal
@@ -166,7 +217,8 @@ def box_quads(center: np.ndarray, yaw: float, size: tuple[float, float, float], 
     return quads
 
 
-def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "SceneConfig | None" = None) -> Scene:
+def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "SceneConfig | None" = None,
+                road: "RoadSurface | None" = None) -> Scene:
     """Procedural world along a trajectory (``kinematics.Trajectory``) for rendering and landmarks.
 
     Quads: one large grass ``ground`` plane (2 cm below the road), gravel shoulders and the asphalt ``road`` strip
@@ -177,22 +229,49 @@ def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "Sce
     ``config.clearance`` (2-D distance) to the swept centre lines of both bodies or the road's
     centre line, so nothing intersects the vehicle's path. ``config`` is a
     :class:`ampc_vo.sim.config.SceneConfig` (defaults if ``None``).
+
+    On a 3D road (``road``, a :class:`ampc_vo.sim.road.RoadSurface` that is not flat) the road,
+    shoulders and a grass band of ``ground_margin_m`` on each side are tilted strips on the surface
+    (:func:`_strip_quads`), centred on the road's centre (``road.lane_offset_m`` left of the path);
+    the large grass plane lies 1 m below the lowest point, and facades and objects stand on the
+    terrain (sunk 0.5 m so that no gap shows on a slope).
     """
+    if road is not None and road.is_flat:
+        road = None
     from scipy.spatial import cKDTree
 
     from ampc_vo.sim.config import SceneConfig
 
     config = SceneConfig() if config is None else config
     centerline = route_centerline(trajectory.T_world_tractor, config.extension_m)
+    if road is not None and road.centerline is not None:  # the road's own design line (lane changes do not move it)
+        end = float(trajectory.arc_length[-1]) if trajectory.arc_length is not None else float(road.centerline.station[-1])
+        centerline = _road_centerline(road.centerline, -config.extension_m, end + config.extension_m)
     corridor = cKDTree(swept_path_points(trajectory.T_world_tractor, trajectory.T_world_trailer, centerline))
     clearance = config.clearance + 0.5  # margin for the sampling of the corridor points
     half_road = config.road_width / 2.0
 
     low, high = centerline.points[:, :2].min(axis=0) - config.ground_margin_m, centerline.points[:, :2].max(axis=0) + config.ground_margin_m
-    quads: list[Quad] = [Quad(np.array([low[0], low[1], _GRASS_Z]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), float(high[0] - low[0]), float(high[1] - low[1]), "ground", "grass", 4.0)]
-    quads += _strip_quads(centerline, -half_road, half_road, _ROAD_Z, "road", "asphalt", 4.0)
-    quads += _strip_quads(centerline, half_road, half_road + config.shoulder_width, _SHOULDER_Z, "ground", "gravel", 3.0)
-    quads += _strip_quads(centerline, -half_road - config.shoulder_width, -half_road, _SHOULDER_Z, "ground", "gravel", 3.0)
+    grass_z = _GRASS_Z
+    centre = 0.0
+    if road is not None:
+        centre = road.lane_offset_m if road.centerline is None else 0.0
+        grass_z = float(np.min(road.height(centerline.points[:, :2]))) - 1.0
+    quads: list[Quad] = [Quad(np.array([low[0], low[1], grass_z]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), float(high[0] - low[0]), float(high[1] - low[1]), "ground", "grass", 4.0)]
+    quads += _strip_quads(centerline, centre - half_road, centre + half_road, _ROAD_Z, "road", "asphalt", 4.0, road)
+    quads += _strip_quads(centerline, centre + half_road, centre + half_road + config.shoulder_width, _SHOULDER_Z, "ground", "gravel", 3.0, road)
+    quads += _strip_quads(centerline, centre - half_road - config.shoulder_width, centre - half_road, _SHOULDER_Z, "ground", "gravel", 3.0, road)
+    if road is not None:
+        outer = centre + half_road + config.shoulder_width
+        quads += _strip_quads(centerline, outer, outer + config.ground_margin_m, _GRASS_Z, "ground", "grass", 4.0, road)
+        outer = centre - half_road - config.shoulder_width
+        quads += _strip_quads(centerline, outer - config.ground_margin_m, outer, _GRASS_Z, "ground", "grass", 4.0, road)
+
+    def terrain(points_2d: np.ndarray) -> float:
+        """Height to stand a facade or object on: the lowest terrain under it, 0.5 m sunk (0 on a flat road)."""
+        if road is None:
+            return 0.0
+        return float(np.min(road.height(np.atleast_2d(points_2d)[:, :2]))) - 0.5
 
     total = float(centerline.arc_length[-1] - centerline.arc_length[0])
     arc = centerline.arc_length - centerline.arc_length[0]
@@ -215,7 +294,9 @@ def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "Sce
             start, stop = center - axis_u * length / 2.0, center + axis_u * length / 2.0
             if _clear(_segment_samples(start, stop), corridor, clearance):
                 texture = str(rng.choice(WALL_TEXTURES if is_wall else FACADE_TEXTURES))
-                quads.append(Quad(start.copy(), axis_u.copy(), _UP.copy(), length, height, "facade", texture, 3.0 if is_wall else 4.0))
+                base = terrain(np.array([start[:2], stop[:2]]))
+                quads.append(Quad(start + np.array([0.0, 0.0, base]), axis_u.copy(), _UP.copy(), length, height + (0.5 if road is not None else 0.0),
+                                  "facade", texture, 3.0 if is_wall else 4.0))
                 facade_count += 1
                 s += length + float(rng.uniform(*config.facade_gap))
             else:
@@ -236,7 +317,8 @@ def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "Sce
             rotation = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
             corners = center[:2] + local @ rotation.T
             if _clear(corners, corridor, clearance):
-                quads += box_quads(center, yaw, size, kind, texture)
+                base = terrain(corners)
+                quads += box_quads(center, yaw, (size[0], size[1], size[2] + (0.5 if road is not None else 0.0)), kind, texture, base_z=base)
                 object_count += 1
             s += config.object_spacing * float(rng.uniform(0.7, 1.3))
     logger.info("scene: %d quads (%d facades, %d objects) along %.0f m", len(quads), facade_count, object_count, total)

@@ -28,6 +28,7 @@ pixel noise of ``pixel_noise_px``.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -39,7 +40,9 @@ from scipy.spatial import cKDTree
 from ampc_vo.errors import ConfigError, OutputError
 from ampc_vo.geometry import invert_pose
 from ampc_vo.io.groundtruth import Trajectory
-from ampc_vo.sim.kinematics import simulate_kinematics
+from ampc_vo.sim.attitude import BodyAngles, poses_on_road
+from ampc_vo.sim.kinematics import AxleGroup, simulate_kinematics
+from ampc_vo.sim.road import FLAT_ROAD, RoadSurface
 from ampc_vo.io.measurements import MEASUREMENTS_FILE, Measurements, load_measurements, save_measurements
 from ampc_vo.rig import Rig
 from ampc_vo.sim.scene import Scene, build_scene
@@ -49,7 +52,7 @@ __all__ = [
     "Measurements", "load_measurements", "save_measurements", "MEASUREMENTS_FILE",
     "LandmarkSet", "sample_landmarks", "occluded", "landmarks_in_view", "occluders_in_view", "visible_landmarks",
     "simulate_measurements",
-    "SimulationResult", "simulate", "simulate_dataset",
+    "SimulationResult", "simulate", "simulate_dataset", "simulate_truth", "decimate", "dense_factor",
 ]
 
 LOGGER = logging.getLogger(__name__)
@@ -65,7 +68,8 @@ class LandmarkSet:
     quad_index: np.ndarray
 
 
-def sample_landmarks(scene: Scene, trajectory: Trajectory, config: SceneConfig, rng: np.random.Generator) -> LandmarkSet:
+def sample_landmarks(scene: Scene, trajectory: Trajectory, config: SceneConfig, rng: np.random.Generator,
+                     road: RoadSurface = FLAT_ROAD) -> LandmarkSet:
     """Sample landmarks on the scene's quads.
 
     Vertical surfaces (facades, boxes, poles) get ``landmark_density_facade`` points per m^2,
@@ -73,7 +77,9 @@ def sample_landmarks(scene: Scene, trajectory: Trajectory, config: SceneConfig, 
     but only on the parts of those quads within ``ground_landmark_band_m`` of the road's centre
     line (the large grass plane would otherwise waste landmarks far from the route); each ground
     point lies exactly on the topmost ground-level quad at its position (road over shoulder over
-    grass), so it matches the rendered surface.
+    grass), so it matches the rendered surface; on a 3D road (``road`` not flat) ground points
+    lie exactly on the road surface model (``road.height``; the tilted quads follow it to a few
+    centimetres, see ``scene``).
     """
     from ampc_vo.sim.scene import route_centerline
 
@@ -100,7 +106,10 @@ def sample_landmarks(scene: Scene, trajectory: Trajectory, config: SceneConfig, 
     keep = ground_index >= 0
     ground = ground[keep]
     ground_index = ground_index[keep]
-    ground[:, 2] = np.array([scene.quads[index].origin[2] for index in ground_index])
+    if road.is_flat:
+        ground[:, 2] = np.array([scene.quads[index].origin[2] for index in ground_index])
+    else:
+        ground[:, 2] = road.height(ground[:, :2])
     points.append(ground)
     quad_index.append(ground_index)
     return LandmarkSet(np.concatenate(points) if points else np.zeros((0, 3)), np.concatenate(quad_index).astype(np.int64) if quad_index else np.zeros(0, np.int64))
@@ -335,6 +344,11 @@ class SimulationResult:
     landmarks: LandmarkSet
     measurements: Measurements
     images_written: bool = False
+    # the same motion sampled at >= 200 Hz (every k-th sample is a frame of ``trajectory``), for
+    # per-camera capture times and rolling-shutter rows; the road the wheels stand on; body angles
+    dense_trajectory: Trajectory | None = None
+    road: RoadSurface = FLAT_ROAD
+    body_angles: BodyAngles | None = None
 
 
 def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> SimulationResult:
@@ -345,12 +359,52 @@ def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> S
     if not rig.has_trailer:
         raise ConfigError(f"{config.rig_path}: the simulator needs a rig with a trailer body")
     rng = np.random.default_rng(config.seed)
-    trajectory = simulate_kinematics(config.route, config.rate_hz, rig.axle_x("tractor"), rig.axle_x("trailer"),
-                                     config.initial_hitch_angle, config.duration, slip=config.tyre_slip)
-    scene = build_scene(trajectory, rng, config.scene)
-    landmarks = sample_landmarks(scene, trajectory, config.scene, rng)
+    dense, road, angles = simulate_truth(config, rig)
+    trajectory = decimate(dense, dense_factor(config))
+    scene = build_scene(trajectory, rng, config.scene, road=road)
+    landmarks = sample_landmarks(scene, trajectory, config.scene, rng, road=road)
     measurements = simulate_measurements(trajectory, rig, landmarks, scene, config, rng)
-    return SimulationResult(config, rig, trajectory, scene, landmarks, measurements)
+    return SimulationResult(config, rig, trajectory, scene, landmarks, measurements, dense_trajectory=dense, road=road, body_angles=angles)
+
+
+def dense_factor(config: SimulationConfig) -> int:
+    """Samples of the dense trajectory per camera frame: ``ceil(dense_rate_hz / rate_hz)``."""
+    return max(int(np.ceil(config.dense_rate_hz / config.rate_hz - 1e-9)), 1)
+
+
+def decimate(trajectory: Trajectory, step: int) -> Trajectory:
+    """Every ``step``-th sample of a trajectory (the camera frames of a dense one)."""
+    pick = slice(None, None, step)
+    optional = lambda values: None if values is None else values[pick].copy()  # noqa: E731
+    return Trajectory(trajectory.timestamps[pick].copy(), trajectory.T_world_tractor[pick].copy(), trajectory.T_world_trailer[pick].copy(),
+                      trajectory.hitch_angle[pick].copy(), optional(trajectory.speed), optional(trajectory.curvature), optional(trajectory.arc_length))
+
+
+def simulate_truth(config: SimulationConfig, rig: Rig) -> tuple[Trajectory, RoadSurface, BodyAngles | None]:
+    """The true motion at the dense rate (``dense_factor`` samples per frame): planar kinematics
+    (``kinematics``, with the trailer's axle group and the lane's cross-slope), the road along the
+    tractor axle's path (``road``) and the 6-DoF poses on it (``attitude.poses_on_road``). A flat
+    road without body motion keeps the planar poses, lifted to ``hitch_height``."""
+    tractor_axle_x, trailer_axle_x = rig.axle_x("tractor"), rig.axle_x("trailer")
+    vehicle, road_config = config.vehicle, config.road
+    group = AxleGroup(vehicle.trailer_axles, vehicle.axle_spread_m) if vehicle.trailer_axles > 1 else None
+    tilted = road_config.has_profile or road_config.plane_slope != (0.0, 0.0)
+    planar = simulate_kinematics(config.route, config.rate_hz, tractor_axle_x, trailer_axle_x, config.initial_hitch_angle, config.duration,
+                                 slip=config.tyre_slip, samples_per_frame=dense_factor(config), axle_group=group,
+                                 lateral_slope=road_config.lane_slope(config.route.curvature) if tilted and config.tyre_slip > 0.0 else None)
+    if not tilted and not road_config.bumps:
+        road = FLAT_ROAD
+    else:
+        path, station, curvature = config.route.design_path((tractor_axle_x, 0.0), config.scene.extension_m + config.scene.ground_margin_m)
+        road = road_config.surface(path, station, curvature, config.scene.road_width / 2.0 + config.scene.shoulder_width)
+    if road.is_flat and not vehicle.moves_bodies:
+        lifted_tractor, lifted_trailer = planar.T_world_tractor.copy(), planar.T_world_trailer.copy()
+        lifted_tractor[:, 2, 3] += rig.hitch_height
+        lifted_trailer[:, 2, 3] += rig.hitch_height
+        return dataclasses.replace(planar, T_world_tractor=lifted_tractor, T_world_trailer=lifted_trailer), road, None
+    body_rng = np.random.default_rng([config.seed, 13])
+    dense, angles = poses_on_road(planar, road, tractor_axle_x, trailer_axle_x, rig.hitch_height, vehicle, body_rng)
+    return dense, road, angles
 
 
 def _renderer():
@@ -388,4 +442,4 @@ def simulate_dataset(config: SimulationConfig | str | Path, out_dir: str | Path,
     write_dataset(out_dir, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory,
                   measurements=result.measurements, with_images=images_written)
     LOGGER.info("dataset written to %s in %.1f s", out_dir, time.perf_counter() - started)
-    return SimulationResult(result.config, result.rig, result.trajectory, result.scene, result.landmarks, result.measurements, images_written)
+    return dataclasses.replace(result, images_written=images_written)

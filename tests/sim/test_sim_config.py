@@ -12,6 +12,29 @@ from ampc_vo.sim.config import load_sim_config
 
 SIM_DIR = Path(__file__).resolve().parents[2] / "configs" / "sim"
 REQUIRED_ROUTES = ("city_block", "roundabout", "gentle_curve", "highway_lane_changes", "yard", "demo")
+REALISTIC_ROUTES = ("realistic_city_start", "realistic_yard_reverse", "realistic_hilly_rural", "realistic_motorway",
+                    "realistic_stop_and_go", "realistic_ci_short")
+
+
+def test_realistic_suite_is_labelled_on_the_semitrailer_rig_and_starts_and_ends_at_rest():
+    for name in REALISTIC_ROUTES:
+        config = load_sim_config(SIM_DIR / f"{name}.yaml")
+        assert config.label == "realistic" and config.rig_path.name == "semitrailer.yaml", name
+        assert config.route.segments[0].kind == "stop" and config.route.acceleration is not None, name
+        assert config.vehicle.suspension and config.vehicle.trailer_axles > 1, name
+        if name != "realistic_ci_short":
+            assert config.route.segments[-1].kind == "stop", name
+    for path in SIM_DIR.glob("*.yaml"):
+        label = load_sim_config(path).label
+        assert label == ("realistic" if path.stem.startswith("realistic_") else "ideal"), path.name
+    motorway = load_sim_config(SIM_DIR / "realistic_motorway.yaml")
+    assert max(segment.speed for segment in motorway.route.segments) >= 25.0
+    assert any(segment.kind == "lane_change" for segment in motorway.route.segments)
+    hilly = load_sim_config(SIM_DIR / "realistic_hilly_rural.yaml")
+    assert max(abs(grade) for _, grade in hilly.road.grade_changes) == 0.08 and hilly.road.crown > 0 and hilly.road.max_superelevation > 0
+    yard = load_sim_config(SIM_DIR / "realistic_yard_reverse.yaml")
+    directions = [segment.reverse for segment in yard.route.segments if segment.kind != "stop"]
+    assert sum(a != b for a, b in zip(directions, directions[1:])) == 2
 
 
 def test_required_route_configs_exist_and_load():
@@ -49,6 +72,19 @@ def _write(tmp_path: Path, changes: dict, drop: tuple = ()) -> Path:
         ({"scene": {"tree_density": 1}}, (), "scene: unknown field"),
         ({"speeed": 3}, (), "unknown field(s) ['speeed']"),
         ({"tyre_slip_deg_per_mps2": -0.1}, (), "tyre_slip_deg_per_mps2"),
+        ({"road": {"grade": 5}}, (), "road: unknown field(s) ['grade']"),
+        ({"road": {"start_grade_percent": 40}}, (), "road.start_grade_percent"),
+        ({"road": {"grades": [[100, 4], [50, 2]]}}, (), "road.grades[1]: stations must increase"),
+        ({"road": {"grades": [[100]]}}, (), "road.grades[0]"),
+        ({"road": {"bumps": [{"station": 3, "lateral": 0, "length": 1, "width": 1}]}}, (), "road.bumps[0]: missing ['height']"),
+        ({"road": {"crown_percent": 2}, "segments": [{"type": "straight", "length": 10, "reverse": True}]}, (), "road: a grade/crown"),
+        ({"vehicle": {"load": "heavy"}}, (), "vehicle.load"),
+        ({"vehicle": {"trailer_axles": 4}}, (), "vehicle.trailer_axles"),
+        ({"driving": {"acceleration": 0}}, (), "driving.acceleration"),
+        ({"driving": {"jerk": 1}}, (), "driving: unknown field"),
+        ({"segments": [{"type": "stop", "duration": 1, "reverse": True}]}, (), "segments[0].reverse"),
+        ({"label": "fancy"}, (), "label"),
+        ({"dense_rate_hz": 50}, (), "dense_rate_hz"),
     ],
 )
 def test_bad_configs_name_file_and_field(tmp_path, changes, drop, field):
