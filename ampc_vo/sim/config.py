@@ -18,6 +18,7 @@ Example::
       - {type: turn, angle_deg: 90, radius: 20, transition: 8}
     scene: {road_width: 7.0, facade_distance: [6, 25]}
     render: {sensor_noise_sigma: 1.0}  # optional, options of ampc_vo.sim.render.RenderOptions
+    cameras: {left: {offset_ms: 23}}   # optional, per-camera timing and image formation (sim.camera_settings)
 
 Every problem raises :class:`ConfigError` naming the file and the field.
 """
@@ -33,6 +34,7 @@ import yaml
 
 from ampc_vo.errors import ConfigError
 from ampc_vo.rig import Rig, load_rig
+from ampc_vo.sim.camera_settings import CameraSettingsTable, camera_settings_from_dict
 from ampc_vo.sim.routes import Route, route_from_list
 
 REPOSITORY_ROOT = Path(__file__).resolve().parents[2]
@@ -77,6 +79,7 @@ class SimulationConfig:
     max_tracks_per_camera: int = 200
     scene: SceneConfig = field(default_factory=SceneConfig)
     render: dict | None = None                       # renderer options (``render.render_options_from_dict``)
+    cameras: CameraSettingsTable = field(default_factory=CameraSettingsTable)  # per-camera timing and effects
 
     def load_rig(self) -> Rig:
         return load_rig(self.rig_path)
@@ -84,7 +87,7 @@ class SimulationConfig:
 
 _TOP_LEVEL = {
     "rig", "rate_hz", "speed", "duration", "initial_hitch_angle_deg", "tyre_slip_deg_per_mps2", "seed", "pixel_noise_px", "outlier_fraction",
-    "max_range_m", "min_range_m", "max_tracks_per_camera", "segments", "scene", "render", "speed_ramp_m", "description", "name",
+    "max_range_m", "min_range_m", "max_tracks_per_camera", "segments", "scene", "render", "cameras", "speed_ramp_m", "description", "name",
 }
 
 
@@ -181,6 +184,7 @@ def sim_config_from_dict(raw: Any, config_path: Path) -> SimulationConfig:
         max_tracks_per_camera=max_tracks,
         scene=_scene_from_dict(raw.get("scene"), source),
         render=_render_section(raw.get("render"), source),
+        cameras=camera_settings_from_dict(raw.get("cameras"), source),
     )
 
 

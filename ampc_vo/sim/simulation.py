@@ -28,6 +28,7 @@ pixel noise of ``pixel_noise_px``.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -48,7 +49,7 @@ from ampc_vo.sim.config import SceneConfig, SimulationConfig, load_sim_config
 __all__ = [
     "Measurements", "load_measurements", "save_measurements", "MEASUREMENTS_FILE",
     "LandmarkSet", "sample_landmarks", "occluded", "landmarks_in_view", "occluders_in_view", "visible_landmarks",
-    "simulate_measurements",
+    "simulate_measurements", "simulate_capture_times",
     "SimulationResult", "simulate", "simulate_dataset",
 ]
 
@@ -272,17 +273,40 @@ def _select_tracks(
 
 
 def simulate_measurements(
-    trajectory: Trajectory, rig: Rig, landmarks: LandmarkSet, scene: Scene, config: SimulationConfig, rng: np.random.Generator
+    trajectory: Trajectory, rig: Rig, landmarks: LandmarkSet, scene: Scene, config: SimulationConfig, rng: np.random.Generator,
+    capture_times: dict[str, np.ndarray] | None = None, pose_trajectory: Trajectory | None = None,
 ) -> Measurements:
-    """Tracks of every camera over the trajectory (module docstring)."""
+    """Tracks of every camera over the trajectory (module docstring).
+
+    ``capture_times`` (per camera, (F,) seconds; default: the frame times) say when each camera
+    captures each frame; poses between samples come from ``pose_trajectory`` (default
+    ``trajectory``; a denser one where available) by SE(3) interpolation (``sim.motion``).
+    Visibility and occlusion use the pose at the middle of the readout; the kept tracks' pixels are
+    then projected with the rolling shutter (``camera_timing.project_rolling_shutter``: each point
+    with the pose at the time of its own row), and tracks leaving the image that way are dropped.
+    Cross-camera associations are only those a stereo matcher could find (``sim.associations``).
+    """
+    from ampc_vo.sim.associations import association_ids, overlap_groups
+    from ampc_vo.sim.camera_timing import project_rolling_shutter
+    from ampc_vo.sim.motion import sample_poses
+
+    pose_trajectory = trajectory if pose_trajectory is None else pose_trajectory
+    capture_times = capture_times or {}
+    frame_times = np.asarray(trajectory.timestamps, float)
     tree = cKDTree(landmarks.points)
     occluders = _Occluders.from_scene(scene)
     columns: dict[str, list[np.ndarray]] = {name: [] for name in ("frame", "camera_index", "track_id", "landmark_id", "pixel", "pixel_clean", "is_outlier")}
     active = {camera.name: (np.zeros(0, np.int64), np.zeros(0, np.int64)) for camera in rig.cameras}  # landmark ids, track ids
+    camera_timestamps = np.stack([np.asarray(capture_times.get(camera.name, frame_times), float) for camera in rig.cameras], axis=1)
     next_track = 0
     for frame in range(len(trajectory)):
         for camera_index, camera in enumerate(rig.cameras):
-            T_world_camera = trajectory.pose(camera.body)[frame] @ camera.T_body_camera
+            capture = float(camera_timestamps[frame, camera_index])
+
+            def pose_at(times: np.ndarray, camera=camera) -> np.ndarray:
+                return sample_poses(pose_trajectory, camera.body, times) @ camera.T_body_camera
+
+            T_world_camera = pose_at(np.array([capture + 0.5 * camera.readout_time]))[0]
             ids, clean = landmarks_in_view(camera, T_world_camera, landmarks, tree, config.max_range_m, config.min_range_m)
             nearby = occluders_in_view(occluders, T_world_camera, config.max_range_m)
 
@@ -293,6 +317,10 @@ def simulate_measurements(
             previous_ids, previous_tracks = active[camera.name]
             keep_ids, keep_clean, count_continuing = _select_tracks(
                 ids, clean, previous_ids, config.max_tracks_per_camera, is_hidden, (camera.width, camera.height), rng)
+            if camera.readout_time > 0 and len(keep_ids):
+                keep_clean, in_image, _ = project_rolling_shutter(camera, pose_at, landmarks.points[keep_ids], capture)
+                count_continuing = int(np.count_nonzero(in_image[:count_continuing]))
+                keep_ids, keep_clean = keep_ids[in_image], keep_clean[in_image]
             tracks = np.empty(len(keep_ids), np.int64)
             if count_continuing:
                 lookup = dict(zip(previous_ids.tolist(), previous_tracks.tolist()))
@@ -315,12 +343,17 @@ def simulate_measurements(
             columns["pixel_clean"].append(keep_clean)
             columns["is_outlier"].append(is_outlier)
     stacked = {name: np.concatenate(parts) if parts else np.zeros(0) for name, parts in columns.items()}
+    frame_column, camera_column = stacked["frame"].astype(np.int64), stacked["camera_index"].astype(np.int64)
+    track_column, landmark_column = stacked["track_id"].astype(np.int64), stacked["landmark_id"].astype(np.int64)
+    outlier_column = stacked["is_outlier"].astype(bool)
+    groups = overlap_groups(rig, config.max_range_m)
     return Measurements(
-        frame=stacked["frame"].astype(np.int64), camera_index=stacked["camera_index"].astype(np.int64),
-        track_id=stacked["track_id"].astype(np.int64), landmark_id=stacked["landmark_id"].astype(np.int64),
+        frame=frame_column, camera_index=camera_column, track_id=track_column, landmark_id=landmark_column,
         pixel=stacked["pixel"].reshape(-1, 2), pixel_clean=stacked["pixel_clean"].reshape(-1, 2),
-        is_outlier=stacked["is_outlier"].astype(bool), camera_names=tuple(rig.camera_names),
-        landmarks=landmarks.points, timestamps=trajectory.timestamps.copy(), rig=rig,
+        is_outlier=outlier_column, camera_names=tuple(rig.camera_names),
+        landmarks=landmarks.points, timestamps=frame_times.copy(), rig=rig,
+        camera_timestamps=camera_timestamps,
+        association_id=association_ids(frame_column, camera_column, landmark_column, track_column, outlier_column, groups),
     )
 
 
@@ -335,6 +368,7 @@ class SimulationResult:
     landmarks: LandmarkSet
     measurements: Measurements
     images_written: bool = False
+    capture_times: dict[str, np.ndarray] | None = None  # per camera (F,) seconds (``camera_timing.capture_times``)
 
 
 def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> SimulationResult:
@@ -349,8 +383,21 @@ def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> S
                                      config.initial_hitch_angle, config.duration, slip=config.tyre_slip)
     scene = build_scene(trajectory, rng, config.scene)
     landmarks = sample_landmarks(scene, trajectory, config.scene, rng)
-    measurements = simulate_measurements(trajectory, rig, landmarks, scene, config, rng)
-    return SimulationResult(config, rig, trajectory, scene, landmarks, measurements)
+    capture_times = simulate_capture_times(config, rig, trajectory.timestamps)
+    measurements = simulate_measurements(trajectory, rig, landmarks, scene, config, rng, capture_times)
+    return SimulationResult(config, rig, trajectory, scene, landmarks, measurements, capture_times=capture_times)
+
+
+def simulate_capture_times(config: SimulationConfig, rig: Rig, frame_times: np.ndarray) -> dict[str, np.ndarray]:
+    """Capture times of every rig camera (``camera_timing.capture_times``; the config's ``cameras:``
+    section), from their own random stream (seeded by ``config.seed``) so that timing does not
+    change the landmarks and tracks."""
+    from ampc_vo.sim.camera_settings import settings_for
+    from ampc_vo.sim.camera_timing import capture_times
+
+    settings = settings_for(config.cameras, rig.camera_names, str(config.rig_path))
+    rng = np.random.default_rng([config.seed, 13])
+    return {camera.name: capture_times(frame_times, setting, rng, camera.name) for camera, setting in zip(rig.cameras, settings)}
 
 
 def _renderer():
@@ -383,9 +430,18 @@ def simulate_dataset(config: SimulationConfig | str | Path, out_dir: str | Path,
             from ampc_vo.sim.render import render_options_from_dict
 
             options = render_options_from_dict(result.config.render, f"{result.config.source}: render")
-            render_sequence(out_dir, result.rig, result.trajectory, result.scene, options=options, progress=progress)
+            render_sequence(out_dir, result.rig, result.trajectory, result.scene, options=options, progress=progress,
+                            capture_times=result.capture_times, camera_settings=result.config.cameras)
             images_written = True
     write_dataset(out_dir, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory,
-                  measurements=result.measurements, with_images=images_written)
+                  measurements=result.measurements, with_images=images_written,
+                  camera_timestamps=_stated_capture_times(result))
     LOGGER.info("dataset written to %s in %.1f s", out_dir, time.perf_counter() - started)
-    return SimulationResult(result.config, result.rig, result.trajectory, result.scene, result.landmarks, result.measurements, images_written)
+    return dataclasses.replace(result, images_written=images_written)
+
+
+def _stated_capture_times(result: SimulationResult) -> dict[str, np.ndarray] | None:
+    """The capture times frames.csv states: only for cameras that do not capture at the frame time."""
+    times = {name: values for name, values in (result.capture_times or {}).items()
+             if not np.array_equal(values, result.trajectory.timestamps)}
+    return times or None
