@@ -17,6 +17,9 @@ One row per (frame, camera, track). Arrays (M rows, sorted by frame then camera)
     association_id (M,) int64 optional: cross-camera association a frontend could measure (stereo
                               matches between overlapping cameras, ``sim.associations``), -1 unknown;
                               absent (older files): ``landmark_id`` is used, with a warning (a truth leak)
+    landmark_body (L,) int64  optional: -1 for a static landmark (``landmarks`` row in the world frame),
+                              b >= 0 for one on moving body b (traffic, the trailer box; its row is in
+                              that body's frame: tracks on it are consistent outliers to the static world)
 
 ``Measurements.observations(frame)`` turns the rows of one frame into the backend's currency
 :class:`ampc_vo.observations.FrameObservations` (bearings = ``camera.unproject(pixel)``,
@@ -59,6 +62,7 @@ class Measurements:
     rig: Rig | None = None
     camera_timestamps: np.ndarray | None = None   # (F, C) capture times, None: ``timestamps``
     association_id: np.ndarray | None = None      # (M,) cross-camera associations, None: ``landmark_id``
+    landmark_body: np.ndarray | None = None       # (L,) -1 static, else the moving body of the landmark
 
     def __post_init__(self) -> None:
         order = np.lexsort((self.camera_index, self.frame))
@@ -128,6 +132,7 @@ def save_measurements(measurements: Measurements, path: str | Path) -> None:
         timestamps=measurements.timestamps.astype(np.float64),
         **({} if measurements.camera_timestamps is None else {"camera_timestamps": measurements.camera_timestamps.astype(np.float64)}),
         **({} if measurements.association_id is None else {"association_id": measurements.association_id.astype(np.int64)}),
+        **({} if measurements.landmark_body is None else {"landmark_body": measurements.landmark_body.astype(np.int64)}),
     )
 
 
@@ -190,6 +195,9 @@ def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
         raise DatasetError(f"{path}: array 'association_id' has shape {association_id.shape}, expected ({rows},)")
     else:
         association_id = association_id.astype(np.int64)
+    landmark_body = data.get("landmark_body")
+    if landmark_body is not None and landmark_body.shape != (len(landmarks),):
+        raise DatasetError(f"{path}: array 'landmark_body' has shape {landmark_body.shape}, expected ({len(landmarks)},)")
     if rig is not None:
         unknown = [name for name in camera_names if name not in rig.camera_names]
         if unknown:
@@ -208,4 +216,5 @@ def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
         rig=rig,
         camera_timestamps=camera_timestamps,
         association_id=association_id,
+        landmark_body=None if landmark_body is None else landmark_body.astype(np.int64),
     )

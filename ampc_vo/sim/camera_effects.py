@@ -3,16 +3,15 @@ shot and read noise (issue 13; the renderer of ``sim.render`` supplies the noise
 
 An image of camera ``c`` captured at ``t_c`` (``camera_timing``) is formed as:
 
-1. **Rolling shutter** (rig.yaml ``readout_time``): the image is split into bands of whole tiles;
-   band ``b`` is rendered with the pose at the time of its centre row ``t_c + readout r_b / (H - 1)``
-   (DESIGN 5). The number of bands follows the motion: the image motion over the readout,
-   ``f (|rotation| + |translation| / near_depth)`` with ``near_depth`` the camera's height above
-   the road, divided by ``band_tolerance_px`` (so that within a band the pose error moves no pixel by
-   more than about that), at most one band per tile row.
-2. **Motion blur**: each band is the mean of ``n`` renderings at times spread evenly over the
-   exposure, centred on the row time (the stated row time is the middle of its exposure, so a blurred
-   point's centroid is where the measurement projects it). ``n`` follows the motion over the
-   exposure like the bands, at most ``motion_blur_samples``.
+1. **Rolling shutter** (rig.yaml ``readout_time``): row ``r`` shows the scene at
+   ``t_c + readout r / (H - 1)`` (DESIGN 5). The image is rendered once, with the pose of the middle
+   row, with depth; every surface point is then moved by the camera's motion (first order: the
+   velocity at the middle row, :func:`camera_velocity`) to where the camera sees it at the time of the
+   row it lands in (the fixed point of ``camera_timing``, here on a 4-pixel grid) and the image is
+   warped accordingly (backward map by fixed-point inversion, ``cv2.remap``).
+2. **Motion blur**: the mean of ``motion_blur_samples`` copies of that image shifted along each
+   pixel's image velocity over the exposure, centred on the row time (the stated row time is the
+   middle of its exposure, so a blurred point's centroid is where the measurement projects it).
 3. **Vignetting**: the radiance is multiplied by ``1 - s (1 - cos^4 alpha)``, ``alpha`` the angle
    of the pixel's ray to the optical axis (the natural cos^4 fall-off; Ray, *Applied Photographic
    Optics*, 2002, ch. 17), ``s`` = ``vignetting``.
@@ -31,13 +30,13 @@ import math
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
+import cv2
 import numpy as np
 
 from ampc_vo.rig import Camera
 from ampc_vo.sim.camera_settings import CameraSettings
-from ampc_vo.sim.camera_timing import row_time
 
-__all__ = ["vignetting_factor", "auto_exposure", "expose", "image_motion_px", "band_rows", "blur_offsets",
+__all__ = ["vignetting_factor", "auto_exposure", "split_amplification", "expose", "blur_offsets", "camera_velocity",
            "ImageFormation", "form_image"]
 
 _MIN_EXPOSURE = 0.02  # shortest exposure relative to exposure_ms (auto exposure in bright light)
@@ -87,29 +86,10 @@ def expose(radiance: np.ndarray, amplification: float, settings: CameraSettings,
         signal = signal * vignetting
     if settings.full_well_e <= 0:
         return signal
-    electrons_per_level = settings.full_well_e / (255.0 * gain)
-    electrons = np.maximum(signal, 0.0) * np.float32(electrons_per_level)
-    noise = np.sqrt(electrons) * rng.standard_normal(electrons.shape, dtype=np.float32)
-    if settings.read_noise_e > 0:
-        noise += np.float32(settings.read_noise_e) * rng.standard_normal(electrons.shape, dtype=np.float32)
-    return (electrons + noise) / np.float32(electrons_per_level)
-
-
-def image_motion_px(camera: Camera, T_start: np.ndarray, T_end: np.ndarray, near_depth_m: float) -> float:
-    """Largest image motion (pixels) between two camera poses for points at least ``near_depth_m``
-    away: ``f (rotation angle + |translation| / near_depth)`` (small-motion bound)."""
-    rotation = T_start[:3, :3].T @ T_end[:3, :3]
-    angle = math.acos(float(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
-    shift = float(np.linalg.norm(T_end[:3, 3] - T_start[:3, 3]))
-    return max(camera.fx, camera.fy) * (angle + shift / max(near_depth_m, 0.1))
-
-
-def band_rows(height: int, tile: int, bands: int) -> list[tuple[int, int]]:
-    """``bands`` row ranges of whole tiles covering ``height`` rows (fewer if there are fewer tile rows)."""
-    tile_rows = -(-height // tile)
-    bands = int(np.clip(bands, 1, tile_rows))
-    edges = np.round(np.linspace(0, tile_rows, bands + 1)).astype(int) * tile
-    return [(int(a), int(min(b, height))) for a, b in zip(edges[:-1], edges[1:]) if a < height]
+    # Shot (variance N) and read noise (variance r^2) are independent Gaussians: one draw of variance N + r^2.
+    levels_per_electron = np.float32(255.0 * gain / settings.full_well_e)
+    variance = np.maximum(signal, 0.0) * levels_per_electron + np.float32(settings.read_noise_e**2) * levels_per_electron**2
+    return signal + np.sqrt(variance) * rng.standard_normal(signal.shape, dtype=np.float32)
 
 
 def blur_offsets(samples: int, exposure_s: float) -> np.ndarray:
@@ -119,53 +99,112 @@ def blur_offsets(samples: int, exposure_s: float) -> np.ndarray:
     return ((np.arange(samples) + 0.5) / samples - 0.5) * exposure_s
 
 
+def camera_velocity(pose_at: Callable[[np.ndarray], np.ndarray], time: float, step: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
+    """Linear and angular velocity ``(v, omega)`` of the camera at ``time`` in its own frame (central
+    difference of ``T_world_camera``): ``T(time)^-1 T(time + dt) ~ exp(dt [v, omega])``."""
+    before, after = pose_at(np.array([time - step, time + step]))
+    delta = np.linalg.solve(before, after)
+    rotation = delta[:3, :3]
+    angle = math.acos(float(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
+    axis = np.array([rotation[2, 1] - rotation[1, 2], rotation[0, 2] - rotation[2, 0], rotation[1, 0] - rotation[0, 1]])
+    omega = axis * (0.5 * angle / math.sin(angle) if angle > 1e-9 else 0.5) / (2 * step)
+    middle = pose_at(np.array([time]))[0]
+    velocity = middle[:3, :3].T @ (after[:3, 3] - before[:3, 3]) / (2 * step)
+    return velocity, omega
+
+
 @dataclass(frozen=True)
 class ImageFormation:
-    """How one image is formed (the numbers an image's rendering used; for tests and reports)."""
+    """How one image was formed (for tests and reports)."""
 
-    bands: list[tuple[int, int]]
-    band_times: np.ndarray      # (B,) centre-row time of each band
+    render_time: float           # the time of the rendered (middle-row) pose
+    readout_time: float
     blur_samples: int
     exposure_s: float            # the actual exposure time of the image
     amplification: float
+    max_shift_px: float          # largest rolling-shutter displacement in the image
 
 
-RenderRows = Callable[[np.ndarray, tuple[int, int], float], np.ndarray]  # (T_world_camera, rows, time) -> float32 rows
+_GRID_STEP = 4  # px between the points on which the motion field is computed exactly
 
 
-def form_image(camera: Camera, render_rows: RenderRows, pose_at: Callable[[np.ndarray], np.ndarray], capture_time: float,
-               settings: CameraSettings, amplification: float, rng: np.random.Generator, tile: int = 16,
-               near_depth_m: float = 2.0, band_tolerance_px: float = 1.5, vignetting: np.ndarray | None = None,
-               ) -> tuple[np.ndarray, ImageFormation]:
-    """Float grey image (H, W) of one capture (module docstring, steps 1-5) and how it was formed.
+def _points_at(points: np.ndarray, finite: np.ndarray, dt: np.ndarray, velocity: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """Camera-frame points (N, 3) at ``dt`` (N,) after the rendered pose (first order in the motion:
+    ``X(dt) = X - dt (omega x X + v)``; directions to the sky only rotate)."""
+    motion = np.cross(omega, points) + np.where(finite[:, None], velocity, 0.0)
+    return points - dt[:, None] * motion
 
-    ``render_rows(T_world_camera, rows, time)`` renders image rows ``rows`` seen from a pose at
-    ``time`` (the time selects the traffic's positions); ``pose_at(times) -> (N, 4, 4)``."""
+
+def form_image(camera: Camera, render_with_depth: Callable[[np.ndarray, float], tuple[np.ndarray, np.ndarray]],
+               pose_at: Callable[[np.ndarray], np.ndarray], capture_time: float, settings: CameraSettings, amplification: float,
+               rng: np.random.Generator, rays: np.ndarray, vignetting: np.ndarray | None = None) -> tuple[np.ndarray, ImageFormation]:
+    """Float grey image (H, W) of one capture and how it was formed (module docstring, steps 1-5).
+
+    ``render_with_depth(T_world_camera, time) -> (radiance (H, W), ray distance (H, W), inf for sky)``
+    renders the scene (with the traffic at ``time``); ``pose_at(times) -> (N, 4, 4)``; ``rays`` (3, H, W)
+    the unit pixel rays. The image is rendered once, at the middle row's time, and warped: each
+    surface point (from the depth) is moved with the camera's motion to where the camera sees it
+    at its own row's time (rolling shutter) and along its image motion over the exposure (blur). The
+    motion field is exact (fixed point, first order in the motion over the readout) on a 4-pixel
+    grid and interpolated between: at depth edges the warp smears over a few pixels, and moving
+    traffic is neither distorted nor blurred by its own motion.
+    """
     exposure_relative, _ = split_amplification(amplification, settings)
     exposure_s = settings.exposure_s * exposure_relative
-    if camera.readout_time > 0:
-        ends = pose_at(np.array([capture_time, capture_time + camera.readout_time]))
-        bands = band_rows(camera.height, tile, math.ceil(image_motion_px(camera, ends[0], ends[1], near_depth_m) / band_tolerance_px))
-    else:
-        bands = [(0, camera.height)]
-    centre_rows = np.array([0.5 * (first + stop - 1) for first, stop in bands])
-    band_times = row_time(camera, capture_time, centre_rows) if camera.readout_time > 0 else np.full(len(bands), float(capture_time))
-    samples = 1
-    if exposure_s > 0 and settings.motion_blur_samples > 1:
-        ends = pose_at(np.array([band_times[0] - 0.5 * exposure_s, band_times[0] + 0.5 * exposure_s]))
-        samples = int(np.clip(math.ceil(image_motion_px(camera, ends[0], ends[1], near_depth_m) / band_tolerance_px), 1, settings.motion_blur_samples))
+    readout = camera.readout_time
+    middle = capture_time + 0.5 * readout
+    T_middle = pose_at(np.array([middle]))[0]
+    radiance, depth = render_with_depth(T_middle, middle)
+    samples = settings.motion_blur_samples if exposure_s > 0 else 1
+    if readout <= 0 and samples <= 1:
+        return expose(radiance, amplification, settings, rng, vignetting), ImageFormation(middle, readout, 1, exposure_s, amplification, 0.0)
+    height, width = camera.height, camera.width
+    velocity, omega = camera_velocity(pose_at, middle)
+    # Exact motion field on a grid of pixels: rolling-shutter target and image velocity.
+    grid_v, grid_u = np.mgrid[0:height:_GRID_STEP, 0:width:_GRID_STEP]
+    distance = depth[grid_v, grid_u].astype(np.float64).ravel()
+    finite = np.isfinite(distance)
+    directions = rays[:, grid_v, grid_u].reshape(3, -1).T.astype(np.float64)
+    points = directions * np.where(finite, distance, 1.0)[:, None]
+    source = np.stack([grid_u.ravel(), grid_v.ravel()], axis=1).astype(np.float64)
+    target = source.copy()
+    dt = np.zeros(len(points))
+    if readout > 0:
+        for _ in range(4):  # fixed point: the row a point lands in sets its time (camera_timing)
+            dt = capture_time + readout * np.clip(target[:, 1], 0, height - 1) / (height - 1) - middle
+            target, valid = camera.project(_points_at(points, finite, dt, velocity, omega))
+        target = np.where(valid[:, None] & np.isfinite(target), target, source)
+    step = 1e-3
+    ahead, valid_ahead = camera.project(_points_at(points, finite, dt + step, velocity, omega))
+    behind, valid_behind = camera.project(_points_at(points, finite, dt - step, velocity, omega))
+    image_velocity = np.where((valid_ahead & valid_behind)[:, None], (ahead - behind) / (2 * step), 0.0)
+    shape = grid_u.shape
+
+    columns, rows = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
+    coarse_u, coarse_v = columns / np.float32(_GRID_STEP), rows / np.float32(_GRID_STEP)
+
+    def upsample(u_values: np.ndarray, v_values: np.ndarray) -> np.ndarray:  # bilinear between grid points (pixel k * step)
+        field = np.stack([u_values.reshape(shape), v_values.reshape(shape)], axis=-1).astype(np.float32)
+        return cv2.remap(field, coarse_u, coarse_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    shift = upsample(target[:, 0] - source[:, 0], target[:, 1] - source[:, 1])        # (H, W, 2)
+    flow = upsample(image_velocity[:, 0], image_velocity[:, 1])
+    # Backward map: the source pixel p of each target pixel q solves p + shift(p) = q.
+    map_u, map_v = columns - shift[..., 0], rows - shift[..., 1]
+    for _ in range(2):
+        at = cv2.remap(shift, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        map_u, map_v = columns - at[..., 0], rows - at[..., 1]
+    velocity_at = cv2.remap(flow, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    blur_px = float(np.max(np.hypot(image_velocity[:, 0], image_velocity[:, 1]))) * exposure_s if len(image_velocity) else 0.0
+    samples = int(np.clip(math.ceil(blur_px), 1, samples))  # about one sample per pixel of blur
     offsets = blur_offsets(samples, exposure_s)
-    image = np.empty((camera.height, camera.width), np.float32)
-    for (first, stop), band_time in zip(bands, band_times):
-        times = band_time + offsets
-        poses = pose_at(times)
-        accumulated = None
-        for T_world_camera, time in zip(poses, times):
-            part = render_rows(T_world_camera, (first, stop), float(time))
-            accumulated = part if accumulated is None else accumulated + part
-        image[first:stop] = accumulated / np.float32(len(times))
-    formed = expose(image, amplification, settings, rng, vignetting)
-    return formed, ImageFormation(bands, band_times, samples, exposure_s, amplification)
+    image = np.zeros((height, width), np.float32)
+    for offset in offsets:  # the point seen at q at row time + offset came from p - velocity * offset
+        image += cv2.remap(radiance, map_u - velocity_at[..., 0] * np.float32(offset), map_v - velocity_at[..., 1] * np.float32(offset),
+                           cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    image /= np.float32(len(offsets))
+    max_shift = float(np.max(np.hypot(target[:, 0] - source[:, 0], target[:, 1] - source[:, 1]))) if len(target) else 0.0
+    return expose(image, amplification, settings, rng, vignetting), ImageFormation(middle, readout, len(offsets), exposure_s, amplification, max_shift)
 
 
 def mean_brightness(images: Sequence[np.ndarray]) -> float:

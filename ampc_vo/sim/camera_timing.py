@@ -74,7 +74,8 @@ def project_rolling_shutter(
     """Pixels (N, 2), validity (N,) and exposure times (N,) of points seen by a rolling-shutter camera.
 
     ``pose_at(times)`` gives ``T_world_camera`` at each time; ``points_world`` is (N, 3) static
-    points or a callable ``times -> (N, 3)`` for moving ones (traffic). Global shutter
+    points or a callable ``times -> (N, 3)`` for moving ones (traffic; it broadcasts a single time
+    to all N points). Global shutter
     (``readout_time == 0``): one projection at ``capture_time``. Otherwise the fixed point of the
     module docstring, started at the middle row; a point whose solution leaves the image, or that
     has not converged to 1e-7 px, is invalid.

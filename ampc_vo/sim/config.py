@@ -19,6 +19,8 @@ Example::
     scene: {road_width: 7.0, facade_distance: [6, 25]}
     render: {sensor_noise_sigma: 1.0}  # optional, options of ampc_vo.sim.render.RenderOptions
     cameras: {left: {offset_ms: 23}}   # optional, per-camera timing and image formation (sim.camera_settings)
+    traffic: [{kind: oncoming}]        # optional, moving vehicles (sim.traffic)
+    trailer_body: true                 # optional, the trailer's box in the tractor cameras (sim.traffic)
 
 Every problem raises :class:`ConfigError` naming the file and the field.
 """
@@ -35,6 +37,7 @@ import yaml
 from ampc_vo.errors import ConfigError
 from ampc_vo.rig import Rig, load_rig
 from ampc_vo.sim.camera_settings import CameraSettingsTable, camera_settings_from_dict
+from ampc_vo.sim.traffic_config import TrailerBodySpec, VehicleSpec, trailer_body_from_dict, traffic_from_list
 from ampc_vo.sim.routes import Route, route_from_list
 
 REPOSITORY_ROOT = Path(__file__).resolve().parents[2]
@@ -80,6 +83,8 @@ class SimulationConfig:
     scene: SceneConfig = field(default_factory=SceneConfig)
     render: dict | None = None                       # renderer options (``render.render_options_from_dict``)
     cameras: CameraSettingsTable = field(default_factory=CameraSettingsTable)  # per-camera timing and effects
+    traffic: tuple[VehicleSpec, ...] = ()            # moving vehicles (``sim.traffic``)
+    trailer_body: TrailerBodySpec | None = None      # the trailer's box, seen by the tractor's cameras
 
     def load_rig(self) -> Rig:
         return load_rig(self.rig_path)
@@ -87,7 +92,7 @@ class SimulationConfig:
 
 _TOP_LEVEL = {
     "rig", "rate_hz", "speed", "duration", "initial_hitch_angle_deg", "tyre_slip_deg_per_mps2", "seed", "pixel_noise_px", "outlier_fraction",
-    "max_range_m", "min_range_m", "max_tracks_per_camera", "segments", "scene", "render", "cameras", "speed_ramp_m", "description", "name",
+    "max_range_m", "min_range_m", "max_tracks_per_camera", "segments", "scene", "render", "cameras", "traffic", "trailer_body", "speed_ramp_m", "description", "name",
 }
 
 
@@ -185,6 +190,8 @@ def sim_config_from_dict(raw: Any, config_path: Path) -> SimulationConfig:
         scene=_scene_from_dict(raw.get("scene"), source),
         render=_render_section(raw.get("render"), source),
         cameras=camera_settings_from_dict(raw.get("cameras"), source),
+        traffic=traffic_from_list(raw.get("traffic"), source),
+        trailer_body=trailer_body_from_dict(raw.get("trailer_body"), source),
     )
 
 

@@ -43,6 +43,7 @@ from ampc_vo.errors import ConfigError
 from ampc_vo.rig import Camera, Rig
 from ampc_vo.sim.scene import Quad, Scene
 from ampc_vo.sim.textures import TextureAtlas, build_atlas, load_textures
+from ampc_vo.sim.traffic import vehicle_quads
 
 logger = logging.getLogger(__name__)
 
@@ -621,11 +622,11 @@ class Renderer:
         image, depth = self._render_float_and_depth(camera, T_world_camera, ())
         return to_uint8(image), depth
 
-    def render_rows(self, camera: Camera, T_world_camera: np.ndarray, rows: tuple[int, int],
-                    extra_quads: Sequence[Quad] | PreparedQuads = ()) -> np.ndarray:
-        """Noise-free float32 grey levels of image rows ``rows[0]:rows[1]`` seen from ``T_world_camera``
-        (one band of a rolling-shutter image)."""
-        return self._render_float_and_depth(camera, T_world_camera, extra_quads, rows)[0]
+    def radiance_and_depth(self, camera: Camera, T_world_camera: np.ndarray,
+                           extra_quads: Sequence[Quad] | PreparedQuads | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Noise-free float32 grey levels (H, W) and ray distance (H, W; inf for the sky), with
+        optional extra quads (traffic, the trailer body): what ``camera_effects.form_image`` warps."""
+        return self._render_float_and_depth(camera, T_world_camera, extra_quads)
 
     def prepare_extra(self, extra_quads: Sequence[Quad]) -> PreparedQuads | None:
         """Extra per-frame quads (traffic, the trailer body) prepared once for several bands."""
@@ -735,24 +736,6 @@ def apply_sensor_effects(image: np.ndarray, options: RenderOptions, timestamp: f
     return to_uint8(image)
 
 
-def vehicle_quads(T_world_vehicle: np.ndarray, length: float = 4.5, width: float = 1.8, height: float = 1.5,
-                  texture: str = "metal") -> list[Quad]:
-    """A box (4 sides and the roof) at ``T_world_vehicle`` (origin at the box's ground centre)."""
-    R, p = T_world_vehicle[:3, :3], T_world_vehicle[:3, 3]
-    x, y, z = R[:, 0], R[:, 1], R[:, 2]
-    rear_right = p - 0.5 * length * x - 0.5 * width * y
-    front_right = p + 0.5 * length * x - 0.5 * width * y
-    rear_left = p - 0.5 * length * x + 0.5 * width * y
-    top = rear_right + height * z
-    return [
-        Quad(rear_right, x, z, length, height, "box", texture, 2.0),
-        Quad(rear_left, x, z, length, height, "box", texture, 2.0),
-        Quad(rear_right, y, z, width, height, "box", texture, 2.0),
-        Quad(front_right, y, z, width, height, "box", texture, 2.0),
-        Quad(top, x, y, length, width, "box", texture, 2.0),
-    ]
-
-
 def vehicle_pose(trajectory: Any, frame_time: float, options: RenderOptions) -> np.ndarray:
     """Pose of the moving vehicle: on the tractor's path, ``vehicle_lead_m`` ahead at t = 0, moving at
     ``vehicle_speed_mps`` along it and ``vehicle_lateral_m`` to the side (heading flipped if oncoming)."""
@@ -805,31 +788,35 @@ def _extra_quads(renderer: Renderer, job: SequenceJob, camera: Camera, time: flo
     return extra
 
 
-def _near_depth(rig: Rig, camera: Camera) -> float:
-    """The camera's height above the road (the nearest surface the motion estimate assumes)."""
-    return max(float(camera.T_body_camera[2, 3]) + rig.hitch_height, 1.0)
-
-
-def _render_frame(renderer: Renderer, job: SequenceJob, frame: int) -> None:
+def render_frame_images(renderer: Renderer, job: SequenceJob, frame: int) -> dict[str, np.ndarray]:
+    """uint8 images of every rig camera at one frame of a :class:`SequenceJob` (``camera_effects.form_image``
+    with the camera's capture time, settings and metered exposure, then the render options' effects)."""
     from ampc_vo.sim.camera_effects import form_image, vignetting_factor
 
     options = renderer.options
     timestamp = float(job.trajectory.timestamps[frame])
+    images = {}
     for camera_index, camera in enumerate(job.rig.cameras):
         settings = job.settings[camera_index]
         capture = float(job.capture_times[camera.name][frame])
 
-        def render_rows(T_world_camera: np.ndarray, rows: tuple[int, int], time: float, camera=camera) -> np.ndarray:
-            return renderer.render_rows(camera, T_world_camera, rows, renderer.prepare_extra(_extra_quads(renderer, job, camera, time)))
+        def render_with_depth(T_world_camera: np.ndarray, time: float, camera=camera) -> tuple[np.ndarray, np.ndarray]:
+            return renderer.radiance_and_depth(camera, T_world_camera, _extra_quads(renderer, job, camera, time))
 
-        vignetting = vignetting_factor(renderer.rays_of(camera).rays_planes[2], settings.vignetting) if settings.vignetting > 0 else None
+        rays = renderer.rays_of(camera).rays_planes
+        vignetting = vignetting_factor(rays[2], settings.vignetting) if settings.vignetting > 0 else None
         rng = np.random.default_rng([options.seed, frame, camera_index, 13])
-        image, _ = form_image(camera, render_rows, _camera_pose_at(job, camera), capture, settings,
-                              float(job.amplification[camera.name][frame]), rng, options.tile_size,
-                              _near_depth(job.rig, camera), vignetting=vignetting)
-        output = apply_sensor_effects(image, options, timestamp, frame, camera_index)
-        path = job.out_dir / "images" / camera.name / f"{frame:06d}.png"
-        cv2.imwrite(str(path), output, [cv2.IMWRITE_PNG_COMPRESSION, options.png_compression])
+        amplification = float(job.amplification[camera.name][frame]) if job.amplification else 1.0
+        image, _ = form_image(camera, render_with_depth, _camera_pose_at(job, camera), capture, settings, amplification, rng,
+                              rays, vignetting)
+        images[camera.name] = apply_sensor_effects(image, options, timestamp, frame, camera_index)
+    return images
+
+
+def _render_frame(renderer: Renderer, job: SequenceJob, frame: int) -> None:
+    for name, image in render_frame_images(renderer, job, frame).items():
+        path = job.out_dir / "images" / name / f"{frame:06d}.png"
+        cv2.imwrite(str(path), image, [cv2.IMWRITE_PNG_COMPRESSION, renderer.options.png_compression])
 
 
 def _worker_init(renderer: Renderer, job: SequenceJob) -> None:
@@ -875,6 +862,24 @@ def metered_amplification(renderer: Renderer, job: SequenceJob) -> dict[str, np.
     return result
 
 
+def sequence_job(renderer: Renderer, rig: Rig, trajectory: Any, out_dir: str | Path = ".", capture_times: dict[str, np.ndarray] | None = None,
+                 camera_settings: Any = None, pose_trajectory: Any = None, dynamic_scene: Any = None) -> SequenceJob:
+    """Everything the frames of a sequence need (arguments as :func:`render_sequence`), with the
+    auto exposure metered over the whole sequence (:func:`metered_amplification`)."""
+    from ampc_vo.sim.camera_settings import CameraSettingsTable, settings_for
+
+    options = renderer.options
+    settings = settings_for(camera_settings or CameraSettingsTable(), rig.camera_names)
+    if options.exposure_time_s > 0:  # the render options' blur applies to cameras without their own exposure
+        settings = [dataclasses.replace(item, exposure_s=options.exposure_time_s, motion_blur_samples=options.motion_blur_samples)
+                    if item.exposure_s == 0 else item for item in settings]
+    frame_times = np.asarray(trajectory.timestamps, float)
+    job = SequenceJob(rig, trajectory, trajectory if pose_trajectory is None else pose_trajectory,
+                      {camera.name: np.asarray((capture_times or {}).get(camera.name, frame_times), float) for camera in rig.cameras},
+                      tuple(settings), {}, dynamic_scene, Path(out_dir))
+    return dataclasses.replace(job, amplification=metered_amplification(renderer, job))
+
+
 def render_sequence(out_dir: str | Path, rig: Rig, trajectory: Any, scene: Scene,
                     options: RenderOptions | None = None, progress: bool = True,
                     renderer: Renderer | None = None, capture_times: dict[str, np.ndarray] | None = None,
@@ -891,8 +896,6 @@ def render_sequence(out_dir: str | Path, rig: Rig, trajectory: Any, scene: Scene
     OpenCV thread pool has run deadlocks the children). Returns the relative image
     paths per frame (rig camera order), as ``frames.csv`` lists them.
     """
-    from ampc_vo.sim.camera_settings import CameraSettingsTable, settings_for
-
     options = options or RenderOptions()
     out_dir = Path(out_dir)
     for camera in rig.cameras:
@@ -900,15 +903,7 @@ def render_sequence(out_dir: str | Path, rig: Rig, trajectory: Any, scene: Scene
     renderer = renderer or Renderer(scene, None, options)
     for camera in rig.cameras:  # precompute rays once (the workers receive them with the renderer)
         renderer.rays_of(camera)
-    settings = settings_for(camera_settings or CameraSettingsTable(), rig.camera_names)
-    if options.exposure_time_s > 0:  # the render options' blur applies to cameras without their own exposure
-        settings = [dataclasses.replace(item, exposure_s=options.exposure_time_s, motion_blur_samples=options.motion_blur_samples)
-                    if item.exposure_s == 0 else item for item in settings]
-    frame_times = np.asarray(trajectory.timestamps, float)
-    job = SequenceJob(rig, trajectory, trajectory if pose_trajectory is None else pose_trajectory,
-                      {camera.name: np.asarray((capture_times or {}).get(camera.name, frame_times), float) for camera in rig.cameras},
-                      tuple(settings), {}, dynamic_scene, out_dir)
-    job = dataclasses.replace(job, amplification=metered_amplification(renderer, job))
+    job = sequence_job(renderer, rig, trajectory, out_dir, capture_times, camera_settings, pose_trajectory, dynamic_scene)
     frames = range(len(trajectory))
     processes = max(1, min(options.processes, os.cpu_count() or 1, len(frames)))
     bar = None
