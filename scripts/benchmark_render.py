@@ -1,9 +1,16 @@
 #!/usr/bin/env python3
 """Benchmark the renderer: ms per 640x480 camera frame (pinhole and fisheye rigs) on the default
-route's scene, and the wall time of rendering a whole sequence with worker processes.
+route's scene, the full camera pipeline of a realistic route (rolling shutter, motion blur, auto
+exposure, vignetting, noise, traffic, trailer box: ``--realistic``, default
+configs/sim/camera_effects_demo.yaml), and the wall time of rendering a whole sequence with worker
+processes.
 
     PYTHONPATH=. python scripts/benchmark_render.py [--config configs/sim/demo.yaml] [--frames 20]
                                                     [--sequence-frames 40] [--processes 2]
+                                                    [--realistic configs/sim/camera_effects_demo.yaml]
+
+Timings are single-process; the machine's load average is printed with them (other processes on
+the cores slow every figure).
 """
 from __future__ import annotations
 
@@ -29,13 +36,48 @@ from ampc_vo.sim.scene import build_scene  # noqa: E402
 from ampc_vo.sim.config import load_sim_config  # noqa: E402
 
 
+def benchmark_realistic(config_path: str, count: int) -> None:
+    """ms per image of the whole camera pipeline (``render.render_frame_images``) on a route."""
+    from ampc_vo.sim.render import render_frame_images, render_options_from_dict, sequence_job
+    from ampc_vo.sim.simulation import simulate
+
+    result = simulate(config_path)
+    renderer = Renderer(result.scene, None, render_options_from_dict(result.config.render))
+    for camera in result.rig.cameras:
+        renderer.rays_of(camera)
+    started, cpu_started = time.perf_counter(), time.process_time()
+    job = sequence_job(renderer, result.rig, result.trajectory, capture_times=result.capture_times,
+                       camera_settings=result.config.cameras, dynamic_scene=result.dynamic)
+    metering, metering_cpu = time.perf_counter() - started, time.process_time() - cpu_started
+    frames = np.linspace(0, len(result.trajectory) - 1, count).astype(int)
+    wall, cpu = [], []
+    for frame in frames:
+        wall_start, cpu_start = time.perf_counter(), time.process_time()
+        render_frame_images(renderer, job, int(frame))
+        wall.append((time.perf_counter() - wall_start) / len(result.rig.cameras))
+        cpu.append((time.process_time() - cpu_start) / len(result.rig.cameras))
+    wall_ms, cpu_ms = 1000 * np.array(wall), 1000 * np.array(cpu)
+    readout = sorted({camera.readout_time for camera in result.rig.cameras})
+    images = len(result.trajectory) * len(result.rig.cameras)
+    meter_ms, meter_cpu_ms = 1000 * metering / images, 1000 * metering_cpu / images
+    print(f"realistic {Path(config_path).name} ({len(result.rig.cameras)} cameras, readout {readout} s, "
+          f"{len(result.config.traffic)} vehicles, trailer box {'on' if result.config.trailer_body else 'off'}; {len(frames)} frames): "
+          f"wall median {np.median(wall_ms):.1f} ms/image, p90 {np.percentile(wall_ms, 90):.1f}; CPU median {np.median(cpu_ms):.1f} ms/image; "
+          f"+ auto-exposure metering {meter_ms:.1f} ms/image wall, {meter_cpu_ms:.1f} CPU; load average {os.getloadavg()[0]:.1f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", default=str(REPOSITORY_ROOT / "configs" / "sim" / "demo.yaml"))
     parser.add_argument("--frames", type=int, default=20, help="frames sampled along the route for the per-frame timing")
     parser.add_argument("--sequence-frames", type=int, default=40, help="frames of the whole-sequence timing (0: skip)")
     parser.add_argument("--processes", type=int, default=2)
+    parser.add_argument("--realistic", default=str(REPOSITORY_ROOT / "configs" / "sim" / "camera_effects_demo.yaml"),
+                        help="route of the full camera pipeline timing ('' to skip)")
     args = parser.parse_args()
+    print(f"load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    if args.realistic:
+        benchmark_realistic(args.realistic, args.frames)
 
     config = load_sim_config(args.config)
     rig = config.load_rig()

@@ -12,12 +12,22 @@ One row per (frame, camera, track). Arrays (M rows, sorted by frame then camera)
     camera_names (C,) str
     landmarks (L, 3) float64  world points (ground truth)
     timestamps (F,) float64   seconds, one per frame
+    camera_timestamps (F, C)  optional: capture time of each camera's image (s; rolling shutter: its
+                              first row); absent: every camera captures at ``timestamps``
+    association_id (M,) int64 optional: cross-camera association a frontend could measure (stereo
+                              matches between overlapping cameras, ``sim.associations``), -1 unknown;
+                              absent (older files): ``landmark_id`` is used, with a warning (a truth leak)
+    landmark_body (L,) int64  optional: -1 for a static landmark (``landmarks`` row in the world frame),
+                              b >= 0 for one on moving body b (traffic, the trailer box; its row is in
+                              that body's frame: tracks on it are consistent outliers to the static world)
 
 ``Measurements.observations(frame)`` turns the rows of one frame into the backend's currency
-:class:`ampc_vo.observations.FrameObservations` (bearings = ``camera.unproject(pixel)``).
+:class:`ampc_vo.observations.FrameObservations` (bearings = ``camera.unproject(pixel)``,
+``landmark_ids`` = ``association_id``, ``timestamp`` per camera from ``camera_timestamps``).
 """
 from __future__ import annotations
 
+import logging
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +40,8 @@ from ampc_vo.observations import CameraObservations, FrameObservations
 from ampc_vo.rig import Rig
 
 MEASUREMENTS_FILE = "measurements.npz"
+LOGGER = logging.getLogger(__name__)
+_ROW_ARRAYS = ("frame", "camera_index", "track_id", "landmark_id", "pixel", "pixel_clean", "is_outlier")
 
 
 @dataclass(frozen=True, eq=False)
@@ -48,11 +60,14 @@ class Measurements:
     landmarks: np.ndarray
     timestamps: np.ndarray
     rig: Rig | None = None
+    camera_timestamps: np.ndarray | None = None   # (F, C) capture times, None: ``timestamps``
+    association_id: np.ndarray | None = None      # (M,) cross-camera associations, None: ``landmark_id``
+    landmark_body: np.ndarray | None = None       # (L,) -1 static, else the moving body of the landmark
 
     def __post_init__(self) -> None:
         order = np.lexsort((self.camera_index, self.frame))
         if np.any(order != np.arange(len(order))):
-            for name in ("frame", "camera_index", "track_id", "landmark_id", "pixel", "pixel_clean", "is_outlier"):
+            for name in _ROW_ARRAYS + (("association_id",) if self.association_id is not None else ()):
                 object.__setattr__(self, name, getattr(self, name)[order])
         bounds = np.searchsorted(self.frame, np.arange(self.frame_count + 1))
         object.__setattr__(self, "_bounds", bounds)
@@ -85,7 +100,9 @@ class Measurements:
             selected = rows[self.camera_index[rows] == index]
             pixels = self.pixel[selected]
             bearings = rig.camera(name).unproject(pixels) if len(selected) else np.zeros((0, 3))
-            cameras[name] = CameraObservations(name, self.track_id[selected].copy(), pixels.copy(), bearings, self.landmark_id[selected].copy())
+            associations = self.landmark_id if self.association_id is None else self.association_id
+            timestamp = None if self.camera_timestamps is None else float(self.camera_timestamps[frame, index])
+            cameras[name] = CameraObservations(name, self.track_id[selected].copy(), pixels.copy(), bearings, associations[selected].copy(), timestamp)
         return FrameObservations(frame=int(frame), timestamp=float(self.timestamps[frame]), cameras=cameras)
 
     def frames(self, rig: Rig | None = None) -> Iterator[FrameObservations]:
@@ -113,13 +130,17 @@ def save_measurements(measurements: Measurements, path: str | Path) -> None:
         camera_names=np.asarray(measurements.camera_names, dtype=str),
         landmarks=measurements.landmarks.astype(np.float64),
         timestamps=measurements.timestamps.astype(np.float64),
+        **({} if measurements.camera_timestamps is None else {"camera_timestamps": measurements.camera_timestamps.astype(np.float64)}),
+        **({} if measurements.association_id is None else {"association_id": measurements.association_id.astype(np.int64)}),
+        **({} if measurements.landmark_body is None else {"landmark_body": measurements.landmark_body.astype(np.int64)}),
     )
 
 
 def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
     """Read ``measurements.npz``; a missing, corrupt or inconsistent file raises :class:`DatasetError`.
 
-    ``pixel_clean`` and ``timestamps`` are optional in the file (defaults: ``pixel`` and frame indices).
+    ``pixel_clean``, ``timestamps``, ``camera_timestamps`` and ``association_id`` are optional in the
+    file (defaults: ``pixel``, frame indices, the frame times, ``landmark_id`` with a warning).
     """
     path = Path(path)
     if not path.is_file():
@@ -158,6 +179,25 @@ def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
         timestamps = np.arange(int(data["frame"].max()) + 1 if rows else 0, dtype=float)
     if not np.all(np.isfinite(data["pixel"])):
         raise DatasetError(f"{path}: array 'pixel' contains NaN or infinite values")
+    camera_timestamps = data.get("camera_timestamps")
+    if camera_timestamps is not None:
+        if camera_timestamps.shape != (len(timestamps), len(camera_names)):
+            raise DatasetError(f"{path}: array 'camera_timestamps' must have shape (frames, cameras) = "
+                               f"{(len(timestamps), len(camera_names))}, got {camera_timestamps.shape}")
+        if not np.all(np.isfinite(camera_timestamps)):
+            raise DatasetError(f"{path}: array 'camera_timestamps' contains NaN or infinite values")
+        camera_timestamps = camera_timestamps.astype(float)
+    association_id = data.get("association_id")
+    if association_id is None:
+        LOGGER.warning("%s: no 'association_id' array: ground-truth landmark ids serve as cross-camera associations "
+                       "(a truth leak of older simulations; re-simulate)", path)
+    elif association_id.shape != (rows,):
+        raise DatasetError(f"{path}: array 'association_id' has shape {association_id.shape}, expected ({rows},)")
+    else:
+        association_id = association_id.astype(np.int64)
+    landmark_body = data.get("landmark_body")
+    if landmark_body is not None and landmark_body.shape != (len(landmarks),):
+        raise DatasetError(f"{path}: array 'landmark_body' has shape {landmark_body.shape}, expected ({len(landmarks)},)")
     if rig is not None:
         unknown = [name for name in camera_names if name not in rig.camera_names]
         if unknown:
@@ -174,4 +214,7 @@ def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
         landmarks=landmarks.astype(float),
         timestamps=timestamps,
         rig=rig,
+        camera_timestamps=camera_timestamps,
+        association_id=association_id,
+        landmark_body=None if landmark_body is None else landmark_body.astype(np.int64),
     )

@@ -25,6 +25,9 @@ Example::
            plane_slope_percent: [0, 0], bumps: [{station: 80, lateral: -1.75, length: 0.8, width: 0.6, height: -0.05}]}
     vehicle: {trailer_axles: 3, load: loaded, suspension: true, engine_deg: 0.01, road_deg_per_mps: 0.004}
     dense_rate_hz: 200                 # SimulationResult.dense_trajectory
+    cameras: {left: {offset_ms: 23}}   # optional, per-camera timing and image formation (sim.camera_settings)
+    traffic: [{kind: oncoming}]        # optional, moving vehicles (sim.traffic)
+    trailer_body: true                 # optional, the trailer's box in the tractor cameras (sim.traffic)
 
 Every problem raises :class:`ConfigError` naming the file and the field.
 """
@@ -42,6 +45,8 @@ from ampc_vo.errors import ConfigError
 from ampc_vo.rig import Rig, load_rig
 from ampc_vo.sim.attitude import SUSPENSION, VehicleConfig
 from ampc_vo.sim.road import RoadConfig
+from ampc_vo.sim.camera_settings import CameraSettingsTable, camera_settings_from_dict
+from ampc_vo.sim.traffic_config import TrailerBodySpec, VehicleSpec, trailer_body_from_dict, traffic_from_list
 from ampc_vo.sim.routes import Route, route_from_list
 
 REPOSITORY_ROOT = Path(__file__).resolve().parents[2]
@@ -90,6 +95,9 @@ class SimulationConfig:
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)  # wheels, load, body motion (``vehicle:``)
     dense_rate_hz: float = 200.0                     # rate of SimulationResult.dense_trajectory (>= 200 Hz)
     label: str = ""                                  # "ideal" or "realistic" (YAML label)
+    cameras: CameraSettingsTable = field(default_factory=CameraSettingsTable)  # per-camera timing and effects
+    traffic: tuple[VehicleSpec, ...] = ()            # moving vehicles (``sim.traffic``)
+    trailer_body: TrailerBodySpec | None = None      # the trailer's box, seen by the tractor's cameras
 
     def load_rig(self) -> Rig:
         return load_rig(self.rig_path)
@@ -98,7 +106,7 @@ class SimulationConfig:
 _TOP_LEVEL = {
     "rig", "rate_hz", "speed", "duration", "initial_hitch_angle_deg", "tyre_slip_deg_per_mps2", "seed", "pixel_noise_px", "outlier_fraction",
     "max_range_m", "min_range_m", "max_tracks_per_camera", "segments", "scene", "render", "speed_ramp_m", "description", "name",
-    "road", "driving", "vehicle", "dense_rate_hz", "label",
+    "road", "driving", "vehicle", "dense_rate_hz", "label", "cameras", "traffic", "trailer_body",
 }
 _DRIVING_KEYS = {"acceleration", "deceleration", "direction_change_pause_s"}
 _ROAD_KEYS = {"start_grade_percent", "grades", "vertical_curve_m", "crown_percent", "max_superelevation_percent", "design_speed",
@@ -297,6 +305,9 @@ def sim_config_from_dict(raw: Any, config_path: Path) -> SimulationConfig:
         vehicle=_vehicle_from_dict(raw.get("vehicle"), source),
         dense_rate_hz=_float(raw, "dense_rate_hz", source, 200.0, minimum=200.0, maximum=2000.0),
         label=label,
+        cameras=camera_settings_from_dict(raw.get("cameras"), source),
+        traffic=traffic_from_list(raw.get("traffic"), source),
+        trailer_body=trailer_body_from_dict(raw.get("trailer_body"), source),
     )
 
 

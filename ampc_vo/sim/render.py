@@ -26,6 +26,7 @@ API: :class:`Renderer` (``render``, ``render_float``, ``depth_pass``), :func:`re
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import multiprocessing
@@ -42,6 +43,7 @@ from ampc_vo.errors import ConfigError
 from ampc_vo.rig import Camera, Rig
 from ampc_vo.sim.scene import Quad, Scene
 from ampc_vo.sim.textures import TextureAtlas, build_atlas, load_textures
+from ampc_vo.sim.traffic import vehicle_quads
 
 logger = logging.getLogger(__name__)
 
@@ -512,8 +514,12 @@ class Renderer:
         keep = overlap.any(axis=1)
         return candidates[keep], overlap[keep]
 
-    def depth_pass(self, camera: Camera, T_world_camera: np.ndarray, extra: PreparedQuads | None = None) -> VisibilityBuffer:
-        """Nearest hit per pixel (ray casting with a depth test), as a :class:`VisibilityBuffer`."""
+    def depth_pass(self, camera: Camera, T_world_camera: np.ndarray, extra: PreparedQuads | None = None,
+                   rows: tuple[int, int] | None = None) -> VisibilityBuffer:
+        """Nearest hit per pixel (ray casting with a depth test), as a :class:`VisibilityBuffer`.
+
+        ``rows = (first, stop)``: only image rows ``first:stop`` (a rolling-shutter band); the buffer
+        then has ``stop - first`` rows and only the tiles covering them are ray cast."""
         quads = self.quads if extra is None else _concat_prepared(self.quads, extra)
         rays = self.rays_of(camera)
         R_world_camera = np.asarray(T_world_camera[:3, :3], float)
@@ -536,6 +542,10 @@ class Renderer:
             outline = np.concatenate([o + along_u, o + w * u_c[:, None, :] + along_v,
                                       o + h * v_c[:, None, :] + w * u_c[:, None, :] - along_u, o + h * v_c[:, None, :] - along_v], axis=1)
             candidates, overlap = self._candidate_tiles(camera, rays, quads, centre, origin_c, n_c, outline)
+            if rows is not None:
+                tile = self.options.tile_size
+                in_band = (rays.tile_row >= rows[0] // tile) & (rays.tile_row <= (rows[1] - 1) // tile)
+                overlap = overlap & in_band[None, :]
             nearest = np.linalg.norm(centre[candidates], axis=1) - quads.radius[candidates]
             order = np.argsort(nearest)
             axes_c = np.stack([n_c, u_c, v_c], axis=2).astype(np.float32)  # (Q, 3, 3): columns n, u, v
@@ -572,8 +582,9 @@ class Renderer:
                 np.copyto(ids, np.int32(q), where=hit)
                 quad_id[tiles] = ids
             self.last_stats = {"candidates": int(candidates.size), "quads_tested": tested_quads, "ray_tests": tested_pixels}
-        order = rays.image_order
-        shape = (camera.height, camera.width)
+        first, stop = (0, camera.height) if rows is None else rows
+        order = rays.image_order.reshape(camera.height, camera.width)[first:stop].ravel()
+        shape = (stop - first, camera.width)
         depth_image = depth.ravel()[order].reshape(shape)
         id_image = quad_id.ravel()[order].reshape(shape)
         # Surface coordinates and incidence of the winning quad, per pixel (one gather of its constants).
@@ -582,7 +593,7 @@ class Renderer:
         hit_image = id_image >= 0
         q = np.maximum(id_image, 0).astype(np.intp)
         t = np.where(hit_image, depth_image, np.float32(0.0))
-        ray_x, ray_y, ray_z = rays.rays_planes
+        ray_x, ray_y, ray_z = rays.rays_planes[:, first:stop]
         if len(quads):
             table = np.concatenate([axes_c.reshape(-1, 9), plane.astype(np.float32), quads.offset_a[:, None].astype(np.float32),
                                     quads.offset_b[:, None].astype(np.float32), quads.texture_map.reshape(-1, 6).astype(np.float32)], axis=1)
@@ -611,10 +622,22 @@ class Renderer:
         image, depth = self._render_float_and_depth(camera, T_world_camera, ())
         return to_uint8(image), depth
 
+    def radiance_and_depth(self, camera: Camera, T_world_camera: np.ndarray,
+                           extra_quads: Sequence[Quad] | PreparedQuads | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Noise-free float32 grey levels (H, W) and ray distance (H, W; inf for the sky), with
+        optional extra quads (traffic, the trailer body): what ``camera_effects.form_image`` warps."""
+        return self._render_float_and_depth(camera, T_world_camera, extra_quads)
+
+    def prepare_extra(self, extra_quads: Sequence[Quad]) -> PreparedQuads | None:
+        """Extra per-frame quads (traffic, the trailer body) prepared once for several bands."""
+        return prepare_quads(extra_quads, self.atlas, self.options, seed_offset=10**6) if len(extra_quads) else None
+
     def _render_float_and_depth(self, camera: Camera, T_world_camera: np.ndarray,
-                                extra_quads: Sequence[Quad]) -> tuple[np.ndarray, np.ndarray]:
-        extra = prepare_quads(extra_quads, self.atlas, self.options, seed_offset=10**6) if extra_quads else None
-        visible = self.depth_pass(camera, T_world_camera, extra)
+                                extra_quads: Sequence[Quad] | PreparedQuads | None, rows: tuple[int, int] | None = None,
+                                ) -> tuple[np.ndarray, np.ndarray]:
+        extra = extra_quads if isinstance(extra_quads, PreparedQuads) or extra_quads is None else self.prepare_extra(extra_quads)
+        visible = self.depth_pass(camera, T_world_camera, extra, rows)
+        first, stop = (0, camera.height) if rows is None else rows
         quads = visible.quads
         rays = self.rays_of(camera)
         options = self.options
@@ -632,7 +655,7 @@ class Renderer:
             texels_per_m, texture_x, gain, road_flag, road_along, road_width = constants
             incidence = np.maximum(visible.cos_incidence, np.float32(0.02))
             incidence = np.sqrt(incidence) if options.incidence_exponent == 0.5 else incidence ** np.float32(options.incidence_exponent)
-            pixel_m = t * rays.pixel_angle
+            pixel_m = t * rays.pixel_angle[first:stop]
             footprint_m = pixel_m / incidence
             level = np.log2(np.maximum(footprint_m * texels_per_m, np.float32(1e-6)))
             if options.mip_bias:
@@ -669,9 +692,10 @@ class Renderer:
         sky = ~hit
         if sky.any():  # brighter towards the horizon
             up = R_world_camera[2, :].astype(np.float32)  # world z of the rays
-            elevation = np.clip(rays.rays_planes[0][sky] * up[0] + rays.rays_planes[1][sky] * up[1] + rays.rays_planes[2][sky] * up[2], 0.0, 1.0)
+            planes = rays.rays_planes[:, first:stop]
+            elevation = np.clip(planes[0][sky] * up[0] + planes[1][sky] * up[1] + planes[2][sky] * up[2], 0.0, 1.0)
             image[sky] = options.sky_horizon + (options.sky_zenith - options.sky_horizon) * np.sqrt(elevation)
-        image[~rays.valid] = 0.0
+        image[~rays.valid[first:stop]] = 0.0
         return image, visible.depth
 
     def render(self, camera: Camera, T_world_camera: np.ndarray, extra_quads: Sequence[Quad] = ()) -> np.ndarray:
@@ -703,41 +727,13 @@ def exposure_gain(options: RenderOptions, timestamp: float, camera_index: int) -
 
 
 def apply_sensor_effects(image: np.ndarray, options: RenderOptions, timestamp: float, frame: int, camera_index: int) -> np.ndarray:
-    """Exposure gain and Gaussian sensor noise (seeded by frame and camera); returns uint8."""
+    """The render options' exposure variation and Gaussian noise (``sensor_noise_sigma``, seeded by
+    frame and camera); returns uint8. The camera model of ``sim.camera_effects`` comes first."""
     image = image * np.float32(exposure_gain(options, timestamp, camera_index))
     if options.sensor_noise_sigma > 0:
         rng = np.random.default_rng([options.seed, frame, camera_index])
         image = image + rng.normal(0.0, options.sensor_noise_sigma, image.shape).astype(np.float32)
     return to_uint8(image)
-
-
-def interpolate_pose(T_a: np.ndarray, T_b: np.ndarray, fraction: float) -> np.ndarray:
-    """Pose a fraction of the way from ``T_a`` to ``T_b`` (linear translation, geodesic rotation)."""
-    from scipy.spatial.transform import Rotation
-
-    delta = Rotation.from_matrix(T_a[:3, :3].T @ T_b[:3, :3]).as_rotvec()
-    pose = np.eye(4)
-    pose[:3, :3] = T_a[:3, :3] @ Rotation.from_rotvec(fraction * delta).as_matrix()
-    pose[:3, 3] = (1 - fraction) * T_a[:3, 3] + fraction * T_b[:3, 3]
-    return pose
-
-
-def vehicle_quads(T_world_vehicle: np.ndarray, length: float = 4.5, width: float = 1.8, height: float = 1.5,
-                  texture: str = "metal") -> list[Quad]:
-    """A box (4 sides and the roof) at ``T_world_vehicle`` (origin at the box's ground centre)."""
-    R, p = T_world_vehicle[:3, :3], T_world_vehicle[:3, 3]
-    x, y, z = R[:, 0], R[:, 1], R[:, 2]
-    rear_right = p - 0.5 * length * x - 0.5 * width * y
-    front_right = p + 0.5 * length * x - 0.5 * width * y
-    rear_left = p - 0.5 * length * x + 0.5 * width * y
-    top = rear_right + height * z
-    return [
-        Quad(rear_right, x, z, length, height, "box", texture, 2.0),
-        Quad(rear_left, x, z, length, height, "box", texture, 2.0),
-        Quad(rear_right, y, z, width, height, "box", texture, 2.0),
-        Quad(front_right, y, z, width, height, "box", texture, 2.0),
-        Quad(top, x, y, length, width, "box", texture, 2.0),
-    ]
 
 
 def vehicle_pose(trajectory: Any, frame_time: float, options: RenderOptions) -> np.ndarray:
@@ -761,36 +757,75 @@ def vehicle_pose(trajectory: Any, frame_time: float, options: RenderOptions) -> 
 _WORKER: dict[str, Any] = {}
 
 
-def _render_frame(renderer: Renderer, rig: Rig, trajectory: Any, frame: int, out_dir: Path) -> None:
+@dataclass(frozen=True)
+class SequenceJob:
+    """What every frame of :func:`render_sequence` needs (sent once to each worker process)."""
+
+    rig: Rig
+    trajectory: Any                  # frames (timestamps) and, without pose_trajectory, the poses
+    pose_trajectory: Any             # sampled at any time (sim.motion.sample_poses)
+    capture_times: dict[str, np.ndarray]
+    settings: tuple                  # CameraSettings per rig camera
+    amplification: dict[str, np.ndarray]  # per camera (F,) exposure x gain (auto exposure)
+    dynamic_scene: Any               # None or an object with quads_at(time, camera) -> list[Quad]
+    out_dir: Path
+
+
+def _camera_pose_at(job: SequenceJob, camera: Camera):
+    from ampc_vo.sim.motion import sample_poses
+
+    def pose_at(times: np.ndarray) -> np.ndarray:
+        return sample_poses(job.pose_trajectory, camera.body, np.asarray(times, float)) @ camera.T_body_camera
+    return pose_at
+
+
+def _extra_quads(renderer: Renderer, job: SequenceJob, camera: Camera, time: float) -> list[Quad]:
+    extra: list[Quad] = []
+    if renderer.options.moving_vehicle:
+        extra += vehicle_quads(vehicle_pose(job.trajectory, time, renderer.options))
+    if job.dynamic_scene is not None:
+        extra += job.dynamic_scene.quads_at(time, camera)
+    return extra
+
+
+def render_frame_images(renderer: Renderer, job: SequenceJob, frame: int) -> dict[str, np.ndarray]:
+    """uint8 images of every rig camera at one frame of a :class:`SequenceJob` (``camera_effects.form_image``
+    with the camera's capture time, settings and metered exposure, then the render options' effects)."""
+    from ampc_vo.sim.camera_effects import form_image, vignetting_factor
+
     options = renderer.options
-    timestamp = float(trajectory.timestamps[frame])
-    next_frame = min(frame + 1, len(trajectory) - 1)
-    for camera_index, camera in enumerate(rig.cameras):
-        poses = trajectory.pose(camera.body)
-        if options.motion_blur_samples > 1 and options.exposure_time_s > 0 and next_frame != frame:
-            interval = float(trajectory.timestamps[next_frame] - timestamp)
-            fractions = (np.arange(options.motion_blur_samples) + 0.5) / options.motion_blur_samples * min(options.exposure_time_s / interval, 1.0)
-        else:
-            fractions = np.zeros(1)
-        accumulated = None
-        for fraction in fractions:
-            T_world_body = interpolate_pose(poses[frame], poses[next_frame], float(fraction)) if fraction > 0 else poses[frame]
-            extra = vehicle_quads(vehicle_pose(trajectory, timestamp, options)) if options.moving_vehicle else []
-            image = renderer.render_float(camera, T_world_body @ camera.T_body_camera, extra)
-            accumulated = image if accumulated is None else accumulated + image
-        image = accumulated / len(fractions)
-        output = apply_sensor_effects(image, options, timestamp, frame, camera_index)
-        path = out_dir / "images" / camera.name / f"{frame:06d}.png"
-        cv2.imwrite(str(path), output, [cv2.IMWRITE_PNG_COMPRESSION, options.png_compression])
+    timestamp = float(job.trajectory.timestamps[frame])
+    images = {}
+    for camera_index, camera in enumerate(job.rig.cameras):
+        settings = job.settings[camera_index]
+        capture = float(job.capture_times[camera.name][frame])
+
+        def render_with_depth(T_world_camera: np.ndarray, time: float, camera=camera) -> tuple[np.ndarray, np.ndarray]:
+            return renderer.radiance_and_depth(camera, T_world_camera, _extra_quads(renderer, job, camera, time))
+
+        rays = renderer.rays_of(camera).rays_planes
+        vignetting = vignetting_factor(rays[2], settings.vignetting) if settings.vignetting > 0 else None
+        rng = np.random.default_rng([options.seed, frame, camera_index, 13])
+        amplification = float(job.amplification[camera.name][frame]) if job.amplification else 1.0
+        image, _ = form_image(camera, render_with_depth, _camera_pose_at(job, camera), capture, settings, amplification, rng,
+                              rays, vignetting)
+        images[camera.name] = apply_sensor_effects(image, options, timestamp, frame, camera_index)
+    return images
 
 
-def _worker_init(renderer: Renderer, rig: Rig, trajectory: Any, out_dir: Path) -> None:
+def _render_frame(renderer: Renderer, job: SequenceJob, frame: int) -> None:
+    for name, image in render_frame_images(renderer, job, frame).items():
+        path = job.out_dir / "images" / name / f"{frame:06d}.png"
+        cv2.imwrite(str(path), image, [cv2.IMWRITE_PNG_COMPRESSION, renderer.options.png_compression])
+
+
+def _worker_init(renderer: Renderer, job: SequenceJob) -> None:
     cv2.setNumThreads(1)
-    _WORKER.update(renderer=renderer, rig=rig, trajectory=trajectory, out_dir=out_dir)
+    _WORKER.update(renderer=renderer, job=job)
 
 
 def _worker_frame(frame: int) -> int:
-    _render_frame(_WORKER["renderer"], _WORKER["rig"], _WORKER["trajectory"], frame, _WORKER["out_dir"])
+    _render_frame(_WORKER["renderer"], _WORKER["job"], frame)
     return frame
 
 
@@ -799,12 +834,64 @@ def image_paths(rig: Rig, frame: int) -> list[str]:
     return [f"images/{camera.name}/{frame:06d}.png" for camera in rig.cameras]
 
 
+_METER_SCALE = 8  # the auto-exposure meter renders at 1/8 of the resolution
+
+
+def metered_amplification(renderer: Renderer, job: SequenceJob) -> dict[str, np.ndarray]:
+    """Per camera (F,) exposure x gain from auto exposure (``camera_effects.auto_exposure``): the
+    brightness of each frame is metered on a 1/8-resolution rendering at the middle of the readout
+    (with vignetting), in frame order (the loop reacts to the previous frame)."""
+    from ampc_vo.rig import replace_camera
+    from ampc_vo.sim.camera_effects import auto_exposure, vignetting_factor
+
+    result = {}
+    frames = len(job.trajectory)
+    for camera, settings in zip(job.rig.cameras, job.settings):
+        if not settings.auto_exposure:
+            result[camera.name] = np.ones(frames)
+            continue
+        scale = _METER_SCALE
+        small = replace_camera(camera, width=max(camera.width // scale, 8), height=max(camera.height // scale, 6),
+                               fx=camera.fx / scale, fy=camera.fy / scale, cx=(camera.cx + 0.5) / scale - 0.5, cy=(camera.cy + 0.5) / scale - 0.5)
+        meter = vignetting_factor(renderer.rays_of(small).rays_planes[2], settings.vignetting)
+        times = np.asarray(job.capture_times[camera.name], float) + 0.5 * camera.readout_time
+        poses = _camera_pose_at(job, camera)(times)
+        brightness = np.array([float(np.mean(renderer.render_float(small, pose, _extra_quads(renderer, job, camera, float(time))) * meter))
+                               for pose, time in zip(poses, times)])
+        result[camera.name] = auto_exposure(brightness, times, settings)
+    return result
+
+
+def sequence_job(renderer: Renderer, rig: Rig, trajectory: Any, out_dir: str | Path = ".", capture_times: dict[str, np.ndarray] | None = None,
+                 camera_settings: Any = None, pose_trajectory: Any = None, dynamic_scene: Any = None) -> SequenceJob:
+    """Everything the frames of a sequence need (arguments as :func:`render_sequence`), with the
+    auto exposure metered over the whole sequence (:func:`metered_amplification`)."""
+    from ampc_vo.sim.camera_settings import CameraSettingsTable, settings_for
+
+    options = renderer.options
+    settings = settings_for(camera_settings or CameraSettingsTable(), rig.camera_names)
+    if options.exposure_time_s > 0:  # the render options' blur applies to cameras without their own exposure
+        settings = [dataclasses.replace(item, exposure_s=options.exposure_time_s, motion_blur_samples=options.motion_blur_samples)
+                    if item.exposure_s == 0 else item for item in settings]
+    frame_times = np.asarray(trajectory.timestamps, float)
+    job = SequenceJob(rig, trajectory, trajectory if pose_trajectory is None else pose_trajectory,
+                      {camera.name: np.asarray((capture_times or {}).get(camera.name, frame_times), float) for camera in rig.cameras},
+                      tuple(settings), {}, dynamic_scene, Path(out_dir))
+    return dataclasses.replace(job, amplification=metered_amplification(renderer, job))
+
+
 def render_sequence(out_dir: str | Path, rig: Rig, trajectory: Any, scene: Scene,
                     options: RenderOptions | None = None, progress: bool = True,
-                    renderer: Renderer | None = None) -> list[list[str]]:
+                    renderer: Renderer | None = None, capture_times: dict[str, np.ndarray] | None = None,
+                    camera_settings: Any = None, pose_trajectory: Any = None, dynamic_scene: Any = None) -> list[list[str]]:
     """Render every camera at every frame of ``trajectory`` into ``out_dir/images/<camera>/<frame:06d>.png``.
 
-    ``trajectory`` needs ``timestamps`` (F,) and ``pose(body)`` -> (F, 4, 4) (``kinematics.Trajectory``).
+    ``trajectory`` needs ``timestamps`` (F,) and ``pose(body)`` -> (F, 4, 4) (``io.groundtruth.Trajectory``).
+    Each camera's image is captured at its ``capture_times`` (default: the frame times) and formed
+    by ``sim.camera_effects.form_image`` (rolling shutter, motion blur, auto exposure, vignetting,
+    noise) with its settings from ``camera_settings`` (a ``CameraSettingsTable``; default: ideal);
+    poses between samples are interpolated from ``pose_trajectory`` (default ``trajectory``).
+    ``dynamic_scene.quads_at(time, camera)`` adds moving quads (traffic, the trailer body).
     Frames are spread over ``options.processes`` worker processes (spawned: forking a process whose
     OpenCV thread pool has run deadlocks the children). Returns the relative image
     paths per frame (rig camera order), as ``frames.csv`` lists them.
@@ -816,6 +903,7 @@ def render_sequence(out_dir: str | Path, rig: Rig, trajectory: Any, scene: Scene
     renderer = renderer or Renderer(scene, None, options)
     for camera in rig.cameras:  # precompute rays once (the workers receive them with the renderer)
         renderer.rays_of(camera)
+    job = sequence_job(renderer, rig, trajectory, out_dir, capture_times, camera_settings, pose_trajectory, dynamic_scene)
     frames = range(len(trajectory))
     processes = max(1, min(options.processes, os.cpu_count() or 1, len(frames)))
     bar = None
@@ -825,12 +913,12 @@ def render_sequence(out_dir: str | Path, rig: Rig, trajectory: Any, scene: Scene
         bar = tqdm(total=len(frames), desc="render", unit="frame")
     if processes == 1:
         for frame in frames:
-            _render_frame(renderer, rig, trajectory, frame, out_dir)
+            _render_frame(renderer, job, frame)
             if bar is not None:
                 bar.update(1)
     else:
         context = multiprocessing.get_context("spawn")
-        with context.Pool(processes, initializer=_worker_init, initargs=(renderer, rig, trajectory, out_dir)) as pool:
+        with context.Pool(processes, initializer=_worker_init, initargs=(renderer, job)) as pool:
             for _ in pool.imap_unordered(_worker_frame, frames, chunksize=4):
                 if bar is not None:
                     bar.update(1)

@@ -45,13 +45,14 @@ from ampc_vo.sim.kinematics import AxleGroup, simulate_kinematics
 from ampc_vo.sim.road import FLAT_ROAD, RoadSurface
 from ampc_vo.io.measurements import MEASUREMENTS_FILE, Measurements, load_measurements, save_measurements
 from ampc_vo.rig import Rig
-from ampc_vo.sim.scene import Scene, build_scene
+from ampc_vo.sim.scene import Scene, build_scene, route_centerline
+from ampc_vo.sim.traffic import DynamicScene, build_dynamic_scene
 from ampc_vo.sim.config import SceneConfig, SimulationConfig, load_sim_config
 
 __all__ = [
     "Measurements", "load_measurements", "save_measurements", "MEASUREMENTS_FILE",
     "LandmarkSet", "sample_landmarks", "occluded", "landmarks_in_view", "occluders_in_view", "visible_landmarks",
-    "simulate_measurements",
+    "simulate_measurements", "simulate_capture_times",
     "SimulationResult", "simulate", "simulate_dataset", "simulate_truth", "decimate", "dense_factor",
 ]
 
@@ -281,27 +282,83 @@ def _select_tracks(
 
 
 def simulate_measurements(
-    trajectory: Trajectory, rig: Rig, landmarks: LandmarkSet, scene: Scene, config: SimulationConfig, rng: np.random.Generator
+    trajectory: Trajectory, rig: Rig, landmarks: LandmarkSet, scene: Scene, config: SimulationConfig, rng: np.random.Generator,
+    capture_times: dict[str, np.ndarray] | None = None, pose_trajectory: Trajectory | None = None,
+    dynamic: "DynamicScene | None" = None,
 ) -> Measurements:
-    """Tracks of every camera over the trajectory (module docstring)."""
+    """Tracks of every camera over the trajectory (module docstring).
+
+    ``capture_times`` (per camera, (F,) seconds; default: the frame times) say when each camera
+    captures each frame; poses between samples come from ``pose_trajectory`` (default
+    ``trajectory``; a denser one where available) by SE(3) interpolation (``sim.motion``).
+    Visibility and occlusion use the pose at the middle of the readout; the kept tracks' pixels are
+    then projected with the rolling shutter (``camera_timing.project_rolling_shutter``: each point
+    with the pose at the time of its own row), and tracks leaving the image that way are dropped.
+    Cross-camera associations are only those a stereo matcher could find (``sim.associations``).
+    ``dynamic`` (``sim.traffic``): moving bodies whose surface landmarks are tracked too (ids after
+    the static ones) and whose faces hide what lies behind them.
+    """
+    from ampc_vo.sim.associations import association_ids, overlap_groups
+    from ampc_vo.sim.camera_timing import project_rolling_shutter
+    from ampc_vo.sim.motion import sample_poses
+
+    pose_trajectory = trajectory if pose_trajectory is None else pose_trajectory
+    capture_times = capture_times or {}
+    frame_times = np.asarray(trajectory.timestamps, float)
     tree = cKDTree(landmarks.points)
+    static_count = len(landmarks.points)
     occluders = _Occluders.from_scene(scene)
     columns: dict[str, list[np.ndarray]] = {name: [] for name in ("frame", "camera_index", "track_id", "landmark_id", "pixel", "pixel_clean", "is_outlier")}
     active = {camera.name: (np.zeros(0, np.int64), np.zeros(0, np.int64)) for camera in rig.cameras}  # landmark ids, track ids
+    camera_timestamps = np.stack([np.asarray(capture_times.get(camera.name, frame_times), float) for camera in rig.cameras], axis=1)
     next_track = 0
     for frame in range(len(trajectory)):
         for camera_index, camera in enumerate(rig.cameras):
-            T_world_camera = trajectory.pose(camera.body)[frame] @ camera.T_body_camera
+            capture = float(camera_timestamps[frame, camera_index])
+
+            def pose_at(times: np.ndarray, camera=camera) -> np.ndarray:
+                return sample_poses(pose_trajectory, camera.body, times) @ camera.T_body_camera
+
+            middle = capture + 0.5 * camera.readout_time
+            T_world_camera = pose_at(np.array([middle]))[0]
             ids, clean = landmarks_in_view(camera, T_world_camera, landmarks, tree, config.max_range_m, config.min_range_m)
             nearby = occluders_in_view(occluders, T_world_camera, config.max_range_m)
+            moving = _moving_view(camera, T_world_camera, middle, dynamic, static_count, config) if dynamic is not None else None
+            if moving is not None:
+                ids, clean = np.concatenate([ids, moving.ids]), np.concatenate([clean, moving.pixels])
 
             def is_hidden(indices: np.ndarray) -> np.ndarray:
                 selected = ids[indices]
-                return occluded(T_world_camera[:3, 3], landmarks.points[selected], nearby, landmarks.quad_index[selected])
+                static = selected < static_count
+                hidden = np.zeros(len(selected), bool)
+                hidden[static] = occluded(T_world_camera[:3, 3], landmarks.points[selected[static]], nearby, landmarks.quad_index[selected[static]])
+                if moving is not None:
+                    points = np.empty((len(selected), 3))
+                    points[static] = landmarks.points[selected[static]]
+                    points[~static] = moving.points[np.searchsorted(moving.ids, selected[~static])]
+                    hidden[~static] |= occluded(T_world_camera[:3, 3], points[~static], nearby)
+                    own = np.full(len(selected), -1, np.int64)
+                    own[~static] = moving.own_quad[np.searchsorted(moving.ids, selected[~static])]
+                    hidden |= occluded(T_world_camera[:3, 3], points, moving.occluders, own)
+                return hidden
 
             previous_ids, previous_tracks = active[camera.name]
             keep_ids, keep_clean, count_continuing = _select_tracks(
                 ids, clean, previous_ids, config.max_tracks_per_camera, is_hidden, (camera.width, camera.height), rng)
+            if camera.readout_time > 0 and len(keep_ids):
+                points = landmarks.points[np.minimum(keep_ids, static_count - 1)] if static_count else np.zeros((len(keep_ids), 3))
+                if dynamic is not None and np.any(keep_ids >= static_count):
+                    def points_at(times: np.ndarray, keep_ids=keep_ids, points=points) -> np.ndarray:
+                        result = points.copy()
+                        mask = keep_ids >= static_count
+                        times = np.broadcast_to(np.asarray(times, float), mask.shape)
+                        result[mask] = dynamic.landmarks_at(keep_ids[mask] - static_count, times[mask])
+                        return result
+                    keep_clean, in_image, _ = project_rolling_shutter(camera, pose_at, points_at, capture)
+                else:
+                    keep_clean, in_image, _ = project_rolling_shutter(camera, pose_at, points, capture)
+                count_continuing = int(np.count_nonzero(in_image[:count_continuing]))
+                keep_ids, keep_clean = keep_ids[in_image], keep_clean[in_image]
             tracks = np.empty(len(keep_ids), np.int64)
             if count_continuing:
                 lookup = dict(zip(previous_ids.tolist(), previous_tracks.tolist()))
@@ -324,13 +381,52 @@ def simulate_measurements(
             columns["pixel_clean"].append(keep_clean)
             columns["is_outlier"].append(is_outlier)
     stacked = {name: np.concatenate(parts) if parts else np.zeros(0) for name, parts in columns.items()}
+    frame_column, camera_column = stacked["frame"].astype(np.int64), stacked["camera_index"].astype(np.int64)
+    track_column, landmark_column = stacked["track_id"].astype(np.int64), stacked["landmark_id"].astype(np.int64)
+    outlier_column = stacked["is_outlier"].astype(bool)
+    groups = overlap_groups(rig, config.max_range_m)
+    all_landmarks, landmark_body = landmarks.points, None
+    if dynamic is not None:
+        all_landmarks = np.concatenate([landmarks.points, dynamic.landmark_points])
+        landmark_body = np.concatenate([np.full(static_count, -1, np.int64), dynamic.landmark_body])
     return Measurements(
-        frame=stacked["frame"].astype(np.int64), camera_index=stacked["camera_index"].astype(np.int64),
-        track_id=stacked["track_id"].astype(np.int64), landmark_id=stacked["landmark_id"].astype(np.int64),
+        frame=frame_column, camera_index=camera_column, track_id=track_column, landmark_id=landmark_column,
         pixel=stacked["pixel"].reshape(-1, 2), pixel_clean=stacked["pixel_clean"].reshape(-1, 2),
-        is_outlier=stacked["is_outlier"].astype(bool), camera_names=tuple(rig.camera_names),
-        landmarks=landmarks.points, timestamps=trajectory.timestamps.copy(), rig=rig,
+        is_outlier=outlier_column, camera_names=tuple(rig.camera_names),
+        landmarks=all_landmarks, timestamps=frame_times.copy(), rig=rig, landmark_body=landmark_body,
+        camera_timestamps=camera_timestamps,
+        association_id=association_ids(frame_column, camera_column, landmark_column, track_column, outlier_column, groups),
     )
+
+
+@dataclass(frozen=True)
+class _MovingView:
+    """Dynamic landmarks one camera sees at one time (ids offset by the static count), their world
+    points and noise-free pixels, the moving faces as occluders and each landmark's own face."""
+
+    ids: np.ndarray
+    pixels: np.ndarray
+    points: np.ndarray
+    own_quad: np.ndarray
+    occluders: _Occluders
+
+
+def _moving_view(camera, T_world_camera: np.ndarray, time: float, dynamic: "DynamicScene", static_count: int,
+                 config: SimulationConfig) -> _MovingView:
+    from ampc_vo.sim.scene import Scene as _Scene
+
+    bodies = dynamic.visible_bodies(camera)
+    occluders = _Occluders.from_scene(_Scene(tuple(dynamic.quads_at(time, camera))))
+    indices = np.flatnonzero(np.isin(dynamic.landmark_body, bodies))
+    points = dynamic.landmarks_at(indices, np.full(len(indices), time))
+    T_camera_world = invert_pose(T_world_camera)
+    points_camera = points @ T_camera_world[:3, :3].T + T_camera_world[:3, 3]
+    pixels, valid = camera.project(points_camera)
+    valid &= (points_camera[:, 2] >= config.min_range_m) & (np.linalg.norm(points_camera, axis=1) <= config.max_range_m)
+    rank = {body: k for k, body in enumerate(bodies)}
+    faces = np.cumsum([0] + [len(dynamic.faces[body]) for body in bodies])
+    own = np.array([faces[rank[body]] for body in dynamic.landmark_body[indices]], np.int64) + dynamic.landmark_face[indices] if len(indices) else np.zeros(0, np.int64)
+    return _MovingView(indices[valid] + static_count, pixels[valid], points[valid], own[valid], occluders)
 
 
 @dataclass(frozen=True)
@@ -349,6 +445,8 @@ class SimulationResult:
     dense_trajectory: Trajectory | None = None
     road: RoadSurface = FLAT_ROAD
     body_angles: BodyAngles | None = None
+    capture_times: dict[str, np.ndarray] | None = None  # per camera (F,) seconds (``camera_timing.capture_times``)
+    dynamic: "DynamicScene | None" = None                # traffic and the trailer box (``sim.traffic``)
 
 
 def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> SimulationResult:
@@ -363,8 +461,14 @@ def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> S
     trajectory = decimate(dense, dense_factor(config))
     scene = build_scene(trajectory, rng, config.scene, road=road)
     landmarks = sample_landmarks(scene, trajectory, config.scene, rng, road=road)
-    measurements = simulate_measurements(trajectory, rig, landmarks, scene, config, rng)
-    return SimulationResult(config, rig, trajectory, scene, landmarks, measurements, dense_trajectory=dense, road=road, body_angles=angles)
+    capture_times = simulate_capture_times(config, rig, trajectory.timestamps)
+    dynamic = build_dynamic_scene(config.traffic, config.trailer_body, trajectory, rig,
+                                  route_centerline(trajectory.T_world_tractor, config.scene.extension_m),
+                                  config.scene.landmark_density_facade, np.random.default_rng([config.seed, 17]),
+                                  pose_trajectory=dense, road=None if road.is_flat else road)
+    measurements = simulate_measurements(trajectory, rig, landmarks, scene, config, rng, capture_times, pose_trajectory=dense, dynamic=dynamic)
+    return SimulationResult(config, rig, trajectory, scene, landmarks, measurements, dense_trajectory=dense, road=road, body_angles=angles,
+                            capture_times=capture_times, dynamic=dynamic)
 
 
 def dense_factor(config: SimulationConfig) -> int:
@@ -407,6 +511,18 @@ def simulate_truth(config: SimulationConfig, rig: Rig) -> tuple[Trajectory, Road
     return dense, road, angles
 
 
+def simulate_capture_times(config: SimulationConfig, rig: Rig, frame_times: np.ndarray) -> dict[str, np.ndarray]:
+    """Capture times of every rig camera (``camera_timing.capture_times``; the config's ``cameras:``
+    section), from their own random stream (seeded by ``config.seed``) so that timing does not
+    change the landmarks and tracks."""
+    from ampc_vo.sim.camera_settings import settings_for
+    from ampc_vo.sim.camera_timing import capture_times
+
+    settings = settings_for(config.cameras, rig.camera_names, str(config.rig_path))
+    rng = np.random.default_rng([config.seed, 13])
+    return {camera.name: capture_times(frame_times, setting, rng, camera.name) for camera, setting in zip(rig.cameras, settings)}
+
+
 def _renderer():
     """``ampc_vo.sim.render.render_sequence`` if the renderer exists, else ``None``."""
     try:
@@ -437,9 +553,19 @@ def simulate_dataset(config: SimulationConfig | str | Path, out_dir: str | Path,
             from ampc_vo.sim.render import render_options_from_dict
 
             options = render_options_from_dict(result.config.render, f"{result.config.source}: render")
-            render_sequence(out_dir, result.rig, result.trajectory, result.scene, options=options, progress=progress)
+            render_sequence(out_dir, result.rig, result.trajectory, result.scene, options=options, progress=progress,
+                            capture_times=result.capture_times, camera_settings=result.config.cameras,
+                            pose_trajectory=result.dense_trajectory, dynamic_scene=result.dynamic)
             images_written = True
     write_dataset(out_dir, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory,
-                  measurements=result.measurements, with_images=images_written)
+                  measurements=result.measurements, with_images=images_written,
+                  camera_timestamps=_stated_capture_times(result))
     LOGGER.info("dataset written to %s in %.1f s", out_dir, time.perf_counter() - started)
     return dataclasses.replace(result, images_written=images_written)
+
+
+def _stated_capture_times(result: SimulationResult) -> dict[str, np.ndarray] | None:
+    """The capture times frames.csv states: only for cameras that do not capture at the frame time."""
+    times = {name: values for name, values in (result.capture_times or {}).items()
+             if not np.array_equal(values, result.trajectory.timestamps)}
+    return times or None

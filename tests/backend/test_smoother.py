@@ -171,14 +171,18 @@ def test_match_landmarks_pairs_equal_known_unique_ids():
 
 
 def _cross_camera_run(route, cross_camera: bool):
-    """Keyframes 1.6 m apart with the simulator's landmark ids (outliers included) and true initial motion."""
+    """Keyframes 1.6 m apart with the simulator's true landmark ids as cross-camera associations (an
+    ideal matcher; the simulator itself no longer hands them out), outliers included, true initial motion."""
+    import dataclasses
+
     truth = route.trajectory
+    measurements = dataclasses.replace(route.measurements, association_id=None)  # None: landmark_id
     config = config_from_dict({"scale": {"cross_camera": cross_camera, "cross_camera_max_gap": 6}, "keyframes": {"min_tracks": 5}})  # ci_short: few front->left matches
     smoother = ArticulatedSmoother(route.rig, config)
     frames = list(range(20, 55, 2))
     estimates, previous = [], None
     for frame in frames:
-        observations = route.measurements.observations(frame, route.rig)
+        observations = measurements.observations(frame, route.rig)
         if previous is None:
             init = MotionInit(np.eye(4), MotionStatus.FIRST)
         else:

@@ -1,0 +1,94 @@
+"""Body poses at any time: SE(3) geodesic interpolation of a sampled trajectory (issue 13).
+
+Cameras fire at their own times (per-camera offsets and jitter), rolling-shutter rows are exposed
+one after the other and motion blur integrates the motion over the exposure, so the simulator needs
+the bodies' poses between the samples of a trajectory. Between neighbouring samples ``T_a`` (time
+``t_a``) and ``T_b`` (``t_b``) the pose follows the constant-twist (screw) motion
+
+    T(t) = T_a exp(f log(T_a^-1 T_b)),   f = (t - t_a) / (t_b - t_a)
+
+(the SE(3) geodesic; Barfoot, *State Estimation for Robotics*, 2017, sec. 7.1.7 for exp/log and the
+left Jacobian ``V``). Times before the first or after the last sample extrapolate the first or last
+twist (``f < 0`` or ``f > 1``): camera offsets of a few tens of ms reach past the ends of the
+trajectory. The trajectory to sample is an argument: the camera-rate one of a simulation, or a dense
+(>= 200 Hz) one where the vehicle simulation provides it.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ampc_vo.errors import ConfigError
+from ampc_vo.io.groundtruth import Trajectory
+
+__all__ = ["se3_log", "se3_exp", "interpolate_poses", "sample_poses"]
+
+_SMALL_ANGLE = 1e-6
+
+
+def _skew(vectors: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) cross-product matrices of (N, 3) vectors."""
+    x, y, z = vectors[:, 0], vectors[:, 1], vectors[:, 2]
+    zero = np.zeros_like(x)
+    return np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], axis=1)
+
+
+def _left_jacobian(rotvec: np.ndarray) -> np.ndarray:
+    """``V(phi) = I + (1 - cos t)/t^2 [phi]x + (t - sin t)/t^3 [phi]x^2`` (N, 3, 3), series near 0."""
+    theta = np.linalg.norm(rotvec, axis=1)
+    small = theta < _SMALL_ANGLE
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    b = np.where(small, 1.0 / 6.0 - theta**2 / 120.0, (safe - np.sin(safe)) / safe**3)
+    K = _skew(rotvec)
+    return np.eye(3)[None] + a[:, None, None] * K + b[:, None, None] * (K @ K)
+
+
+def se3_log(poses: np.ndarray) -> np.ndarray:
+    """Twists (N, 6) = (rho, phi) of poses (N, 4, 4): ``T = exp([rho, phi])`` with ``t = V(phi) rho``."""
+    poses = np.asarray(poses, float).reshape(-1, 4, 4)
+    phi = Rotation.from_matrix(poses[:, :3, :3]).as_rotvec()
+    rho = np.linalg.solve(_left_jacobian(phi), poses[:, :3, 3:4])[..., 0]
+    return np.concatenate([rho, phi], axis=1)
+
+
+def se3_exp(twists: np.ndarray) -> np.ndarray:
+    """Poses (N, 4, 4) of twists (N, 6) = (rho, phi) (inverse of :func:`se3_log`)."""
+    twists = np.asarray(twists, float).reshape(-1, 6)
+    poses = np.tile(np.eye(4), (len(twists), 1, 1))
+    poses[:, :3, :3] = Rotation.from_rotvec(twists[:, 3:]).as_matrix()
+    poses[:, :3, 3] = (_left_jacobian(twists[:, 3:]) @ twists[:, :3, None])[..., 0]
+    return poses
+
+
+def interpolate_poses(T_a: np.ndarray, T_b: np.ndarray, fraction: np.ndarray) -> np.ndarray:
+    """``T_a exp(f log(T_a^-1 T_b))`` for (N, 4, 4) pose pairs and (N,) fractions (module docstring)."""
+    T_a = np.asarray(T_a, float).reshape(-1, 4, 4)
+    T_b = np.asarray(T_b, float).reshape(-1, 4, 4)
+    fraction = np.asarray(fraction, float).reshape(-1)
+    R_a_T = np.transpose(T_a[:, :3, :3], (0, 2, 1))
+    relative = np.tile(np.eye(4), (len(T_a), 1, 1))
+    relative[:, :3, :3] = R_a_T @ T_b[:, :3, :3]
+    relative[:, :3, 3] = (R_a_T @ (T_b[:, :3, 3] - T_a[:, :3, 3])[..., None])[..., 0]
+    return T_a @ se3_exp(fraction[:, None] * se3_log(relative))
+
+
+def sample_poses(trajectory: Trajectory, body: str, times: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) poses ``T_world_<body>`` of ``trajectory`` at ``times`` (N,) seconds (module docstring).
+
+    ``body`` is ``'tractor'`` or ``'trailer'``. Exactly at a sample time the sample is returned."""
+    times = np.asarray(times, float).reshape(-1)
+    stamps = np.asarray(trajectory.timestamps, float)
+    poses = trajectory.pose(body)
+    if len(stamps) == 0:
+        raise ConfigError("sample_poses: the trajectory has no samples")
+    if len(stamps) == 1:
+        return np.repeat(poses[:1], len(times), axis=0)
+    if np.any(np.diff(stamps) <= 0):
+        raise ConfigError("sample_poses: trajectory timestamps must increase strictly")
+    index = np.clip(np.searchsorted(stamps, times, side="right") - 1, 0, len(stamps) - 2)
+    fraction = (times - stamps[index]) / (stamps[index + 1] - stamps[index])
+    result = interpolate_poses(poses[index], poses[index + 1], fraction)
+    exact = fraction == 0.0
+    result[exact] = poses[index[exact]]
+    return result
