@@ -98,28 +98,46 @@ def read_lock(directory: str | Path) -> LockOwner | None:
         return LockOwner(0, socket.gethostname(), None, "")  # unreadable (cut off while written): dead
 
 
+def _create_exclusively(path: Path, content: str) -> bool:
+    """Create ``path`` holding ``content`` unless it exists (False then). The content is written to
+    a private file first and hard-linked into place (atomic: a reader never sees an empty lock);
+    where hard links are not supported, ``O_EXCL`` creation."""
+    private = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}")
+    try:
+        private.write_text(content, encoding="utf-8")
+        try:
+            os.link(private, path)
+            return True
+        except FileExistsError:
+            return False
+        except OSError:  # no hard links here (some network or FUSE file systems)
+            try:
+                descriptor = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                return False
+            with os.fdopen(descriptor, "w", encoding="utf-8") as handle:
+                handle.write(content)
+            return True
+    finally:
+        private.unlink(missing_ok=True)
+
+
 def _acquire_lock(directory: Path, run_id: str) -> None:
-    """Create ``run.lock`` exclusively (``O_EXCL``: of two runs started at once only one succeeds)."""
-    content = json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "start_ticks": _process_start_ticks(os.getpid()), "run_id": run_id})
+    """Create ``run.lock`` exclusively (of two runs started at once only one succeeds); a lock whose
+    owner is dead is taken over with a warning."""
+    content = json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "start_ticks": _process_start_ticks(os.getpid()), "run_id": run_id}) + "\n"
     for _ in range(3):
         try:
-            descriptor = os.open(directory / LOCK_FILE, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            owner = read_lock(directory)
-            if owner is not None and owner.alive:
-                raise OutputError(f"{directory}: in use by another run (PID {owner.pid} on {owner.host}, {directory / LOCK_FILE}); "
-                                  "wait for it to end or choose another --out") from None
-            logger.warning("%s: taking over the lock of a run that no longer exists (PID %s, killed?)", directory, owner.pid if owner else "?")
-            try:
-                (directory / LOCK_FILE).unlink()
-            except FileNotFoundError:
-                pass
-            continue
+            if _create_exclusively(directory / LOCK_FILE, content):
+                return
         except OSError as error:
             raise OutputError(f"{directory}: cannot write there ({error.strerror or error})") from None
-        with os.fdopen(descriptor, "w", encoding="utf-8") as handle:
-            handle.write(content + "\n")
-        return
+        owner = read_lock(directory)
+        if owner is not None and owner.alive:
+            raise OutputError(f"{directory}: in use by another run (PID {owner.pid} on {owner.host}, {directory / LOCK_FILE}); "
+                              "wait for it to end or choose another --out")
+        logger.warning("%s: taking over the lock of a run that no longer exists (PID %s, killed?)", directory, owner.pid if owner else "?")
+        (directory / LOCK_FILE).unlink(missing_ok=True)
     raise OutputError(f"{directory}: cannot take {LOCK_FILE} (another run keeps taking it)")
 
 
@@ -208,6 +226,8 @@ class RunFolder:
         return RUN_TAG + self.run_id
 
     def __enter__(self) -> "RunFolder":
+        if self.directory.exists() and not self.directory.is_dir():
+            raise OutputError(f"{self.directory}: is a file, not a folder (--out names the output folder)")
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
         except OSError as error:

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from ampc_vo.errors import EXIT_FAILED, EXIT_SIGINT, EXIT_SIGTERM, AmpcError, Interrupted
+from ampc_vo.io.outputs import TRACTOR_FILE
 
 logger = logging.getLogger(__name__)
 
@@ -46,7 +47,19 @@ class ExitContext:
     def interrupted_note(self) -> str:
         if self.outputs is None:
             return "nothing was written"
-        return f"the estimates written so far are in {self.outputs}"
+        poses = _pose_count(Path(self.outputs) / TRACTOR_FILE)
+        if not poses:
+            return f"no poses were written yet ({self.outputs})"
+        return f"the {poses} poses written so far are in {self.outputs}"
+
+
+def _pose_count(path: Path) -> int:
+    """Data rows of a TUM file (0 when absent or unreadable)."""
+    try:
+        with open(path, encoding="utf-8", errors="replace") as handle:
+            return sum(1 for line in handle if line.strip() and not line.startswith("#"))
+    except OSError:
+        return 0
 
 
 @contextlib.contextmanager

@@ -180,6 +180,18 @@ def test_2_a_second_run_into_a_folder_in_use_is_refused(bearings, tmp_path, caps
     assert not (out / LOCK_FILE).exists()
 
 
+def test_2_two_runs_started_at_once_into_one_folder_one_is_refused(bearings, tmp_path):
+    out = tmp_path / "race"
+    command = [sys.executable, str(ROOT / "scripts" / "run_odometry.py"), str(bearings), "--out", str(out), "--no-progress"]
+    runs = [subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT) for _ in range(2)]
+    results = sorted((run.wait(timeout=300), run.communicate()[1]) for run in runs)
+    assert [code for code, _ in results] == [0, 2], results
+    assert "in use by another run (PID " in _last_line(results[1][1])
+    record = read_run(out)
+    assert record.state == "done" and record.pid in [run.pid for run in runs]
+    assert all(read_run(out).run_id in (out / name).read_text() for name in ("tractor.tum", "trailer.tum", "hitch.csv", "timing.json"))
+
+
 def test_2_a_lock_left_by_a_killed_run_is_taken_over(bearings, tmp_path, capsys, caplog):
     out = tmp_path / "stale_lock"
     out.mkdir()
@@ -302,12 +314,13 @@ def test_4_sigterm_like_sigint_keeps_the_estimates_and_leaves_no_process(rendere
     process.send_signal(signal_number)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == exit_code, stderr
-    assert _last_line(stderr) == f"interrupted ({signal.Signals(signal_number).name}): the estimates written so far are in {out}"
+    rows_after = _pose_rows(out / "tractor.tum")
+    assert _last_line(stderr) == f"interrupted ({signal.Signals(signal_number).name}): the {rows_after} poses written so far are in {out}"
     assert _gone([worker, tracker]) == [], (worker, tracker)
     record = read_run(out)
     assert record.state == "interrupted" and not (out / LOCK_FILE).exists()
     # the window was written at the interrupt, as after Ctrl-C: more poses than when it came
-    assert _pose_rows(out / "tractor.tum") > rows_before
+    assert rows_after > rows_before
     assert "run stopped at frame" in stderr and "writing the keyframes still in the window" in stderr
 
 
