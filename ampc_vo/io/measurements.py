@@ -117,6 +117,7 @@ def save_measurements(measurements: Measurements, path: str | Path) -> None:
     )
 
 
+PIXEL_MARGIN = 0.1  # a measured pixel may lie this fraction of the image size outside it (noise)
 ROW_ARRAYS = ("frame", "camera_index", "track_id", "landmark_id", "is_outlier")
 INTEGER_ARRAYS = ("frame", "camera_index", "track_id", "landmark_id")
 
@@ -161,6 +162,22 @@ def _check_unique_tracks(path: Path, frame: np.ndarray, camera_index: np.ndarray
                            "(a track is seen at most once per frame and camera)")
 
 
+def _check_pixels_inside(path: Path, pixel: np.ndarray, camera_index: np.ndarray, camera_names: tuple[str, ...], rig: Rig) -> None:
+    """Every measured pixel lies in its camera's image, up to ``PIXEL_MARGIN`` of its size (pixel
+    noise at the border): pixels of another resolution, or scaled coordinates, would be unprojected
+    into wrong bearings."""
+    sizes = np.array([[rig.camera(name).width, rig.camera(name).height] for name in camera_names], dtype=float).reshape(-1, 2)
+    if not len(pixel):
+        return
+    limits = sizes[camera_index]
+    outside = np.flatnonzero(np.any((pixel < -PIXEL_MARGIN * limits) | (pixel > (1.0 + PIXEL_MARGIN) * limits), axis=1))
+    if len(outside):
+        row = int(outside[0])
+        camera = rig.camera(camera_names[camera_index[row]])
+        raise DatasetError(f"{path}: row {row}: pixel ({pixel[row, 0]:.6g}, {pixel[row, 1]:.6g}) lies outside the "
+                           f"{camera.width}x{camera.height} image of camera {camera.name!r} ({len(outside)} rows outside; measurements of another rig?)")
+
+
 def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
     """Read ``measurements.npz``; a missing, corrupt or inconsistent file raises :class:`DatasetError`.
 
@@ -169,6 +186,8 @@ def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"{path}: measurements file not found")
+    if not zipfile.is_zipfile(path):
+        raise DatasetError(f"{path}: not a readable .npz file (not a zip archive of arrays)")
     try:
         with np.load(path, allow_pickle=False) as archive:
             data = {name: archive[name] for name in archive.files}
@@ -208,6 +227,7 @@ def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
         unknown = [name for name in camera_names if name not in rig.camera_names]
         if unknown:
             raise DatasetError(f"{path}: camera(s) {unknown} not in the rig (rig cameras: {rig.camera_names})")
+        _check_pixels_inside(path, data["pixel"], data["camera_index"], camera_names, rig)
     return Measurements(
         frame=data["frame"].astype(np.int64),
         camera_index=data["camera_index"].astype(np.int64),

@@ -166,8 +166,11 @@ def read_run(directory: str | Path) -> RunRecord | None:
     path = Path(directory) / RUN_FILE
     if not path.is_file():
         return None
+    required = ("run_id", "command", "pid", "host", "started")
     try:
         raw = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(raw, dict) or any(key not in raw for key in required) or not isinstance(raw.get("files", []), list):
+            raise ValueError(f"expected a mapping with {', '.join(required)} and a list of files")
         return RunRecord(**{key: raw[key] for key in RunRecord.__dataclass_fields__ if key in raw})
     except (OSError, ValueError, TypeError, UnicodeDecodeError) as error:
         raise OutputError(f"{path}: unreadable run manifest ({error}); run the odometry into this folder again") from None

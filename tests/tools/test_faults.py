@@ -426,6 +426,17 @@ def test_7_a_2d_frame_array_and_a_0d_camera_names_are_refused(bearings, tmp_path
         load_measurements(_measurements_with(bearings, tmp_path, camera_names=np.array("front")))
 
 
+def test_7_pixels_of_another_resolution_and_a_file_that_is_no_npz_are_refused(bearings, tmp_path, default_rig):
+    with np.load(bearings / MEASUREMENTS_FILE) as archive:
+        pixel = archive["pixel"]
+    with pytest.raises(DatasetError, match=r"row \d+: pixel .* lies outside the 640x480 image of camera '\w+' \(\d+ rows outside; measurements of another rig\?\)"):
+        load_measurements(_measurements_with(bearings, tmp_path, pixel=pixel * 2.0), default_rig)
+    load_measurements(bearings / MEASUREMENTS_FILE, default_rig)  # the simulator's noisy border pixels are fine
+    (tmp_path / "text.npz").write_text("hello")
+    with pytest.raises(DatasetError, match=r"text.npz: not a readable .npz file \(not a zip archive of arrays\)"):
+        load_measurements(tmp_path / "text.npz")
+
+
 # ---------------------------------------------------------------------- 8. Ctrl-C in the demo's first render
 def test_8_ctrl_c_during_the_demos_first_render(tmp_path, monkeypatch, capsys):
     import ampc_vo.sim.simulation
