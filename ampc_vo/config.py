@@ -8,6 +8,7 @@ so a config file only needs the values it changes. Degrees appear only in fields
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -408,6 +409,8 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
     if annotation is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise _error(where, f"expected a number, got {value!r}")
+        if not math.isfinite(value):  # YAML .inf / .nan: no setting of ours means "without limit"
+            raise _error(where, f"must be a finite number, got {value!r}")
         return float(value)
     if annotation is str:
         if not isinstance(value, str):
@@ -476,6 +479,11 @@ def config_to_dict(config: VoConfig) -> dict:
     return dataclasses.asdict(config)
 
 
+def config_yaml(config: VoConfig) -> str:
+    """A config as YAML text (what :func:`save_config` writes)."""
+    return yaml.safe_dump(config_to_dict(config), sort_keys=False)
+
+
 def save_config(config: VoConfig, path: str | Path) -> None:
     """Write a config as YAML (e.g. beside the outputs of a run, for reproducibility)."""
-    Path(path).write_text(yaml.safe_dump(config_to_dict(config), sort_keys=False), encoding="utf-8")
+    Path(path).write_text(config_yaml(config), encoding="utf-8")

@@ -12,6 +12,12 @@ from ampc_vo.errors import BearingError
 
 ArrayF = np.ndarray
 
+# The one rotation tolerance of the code base (issue 14): how far a rotation may be from a proper
+# one, as |norm - 1| of a quaternion or max |R^T R - I| of a matrix. Within it a value is a rounded
+# or hand-typed rotation and is normalised where it enters (rig.yaml, groundtruth.csv, TUM files,
+# factor constructors); beyond it, it is a typo or a wrong order and an error.
+ROTATION_TOLERANCE = 1e-3
+
 
 def rot_z(angle: float) -> ArrayF:
     """Rotation about z by ``angle`` (paper eq. (7): Q = Rz(theta))."""
@@ -113,8 +119,11 @@ def quat_xyzw_from_rotation(rotation: ArrayF) -> ArrayF:
 
 
 def rotation_from_quat_xyzw(quaternion: ArrayF) -> ArrayF:
-    """Rotation matrix from a unit quaternion (x, y, z, w)."""
-    x, y, z, w = np.asarray(quaternion, dtype=float)
+    """Rotation matrix from a quaternion (x, y, z, w), normalised first (so a rounded quaternion
+    still gives an orthonormal matrix; checking that it was near unit length is the caller's job,
+    :data:`ROTATION_TOLERANCE`)."""
+    quaternion = np.asarray(quaternion, dtype=float)
+    x, y, z, w = quaternion / np.linalg.norm(quaternion)
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
@@ -122,6 +131,20 @@ def rotation_from_quat_xyzw(quaternion: ArrayF) -> ArrayF:
             [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
         ]
     )
+
+
+def orthonormality_error(rotation: ArrayF) -> float:
+    """max |R^T R - I| of a 3x3 matrix (0 for a rotation; compare with :data:`ROTATION_TOLERANCE`)."""
+    rotation = np.asarray(rotation, dtype=float)
+    return float(np.max(np.abs(rotation.T @ rotation - np.eye(3))))
+
+
+def nearest_rotation(matrix: ArrayF) -> ArrayF:
+    """The rotation closest to a 3x3 matrix in the Frobenius norm (SVD projection onto SO(3),
+    Higham 1989), for matrices that are rotations up to rounding."""
+    u, _, vt = np.linalg.svd(np.asarray(matrix, dtype=float))
+    d = np.sign(np.linalg.det(u @ vt))
+    return u @ np.diag([1.0, 1.0, d]) @ vt
 
 
 def pose_to_xyz_quat(pose: ArrayF) -> ArrayF:

@@ -22,7 +22,7 @@ import numpy as np
 import yaml
 
 from ampc_vo.errors import ConfigError
-from ampc_vo.geometry import make_pose, quat_xyzw_from_rotation, rot_y, rot_z, rotation_from_quat_xyzw
+from ampc_vo.geometry import ROTATION_TOLERANCE, make_pose, quat_xyzw_from_rotation, rot_y, rot_z, rotation_from_quat_xyzw
 
 BODY_NAMES = ("tractor", "trailer")
 CAMERA_MODELS = ("pinhole", "fisheye")
@@ -30,6 +30,11 @@ CAMERA_KEYS = ("name", "body", "model", "width", "height", "fx", "fy", "cx", "cy
 RIG_KEYS = ("bodies", "cameras", "hitch_height")
 _NEWTON_ITERATIONS = 30
 _FISHEYE_MAX_THETA = np.deg2rad(100.0)
+# physically possible calibrations (issue 14: nonsense is an error, not a confidently wrong hitch)
+PINHOLE_MAX_HALF_FOV_DEG = 80.0  # a pinhole (rectilinear) lens beyond ~160 degrees does not exist
+MIN_HALF_FOV_DEG = 0.25  # narrower than a 0.5 degree telephoto: a focal length in the wrong unit
+MAX_ASPECT_RATIO = 2.0  # fx / fy: pixels are (nearly) square
+MAX_MOUNT_DISTANCE_M = 50.0  # a camera or an axle this far from the hitch: millimetres for metres?
 
 # Body-frame axes of a camera looking straight ahead: columns are the camera x (right = -y_body),
 # y (down = -z_body) and z (forward = +x_body) axes expressed in the body frame.
@@ -242,6 +247,72 @@ class Rig:
         return self.bodies[body].axle_x
 
 
+# ---------------------------------------------------------------------- plausibility
+def _radial_function(camera: Camera, radius: np.ndarray) -> np.ndarray:
+    """The distorted normalised radius of an undistorted one: pinhole ``r (1 + k1 r^2 + k2 r^4 +
+    k3 r^6)`` (r = tan of the incidence angle), fisheye ``theta_d(theta)`` (r = theta)."""
+    if camera.model == "fisheye":
+        return camera._fisheye_theta_d(radius)
+    k1, k2, _, _, k3 = camera._coefficients(5)
+    r2 = radius * radius
+    return radius * (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3)))
+
+
+def calibration_problem(camera: Camera) -> str | None:
+    """What is physically impossible about a camera's intrinsics, or ``None``: a focal length that
+    gives a field of view no lens of that model has (fx = 1e-9, or in metres), non-square pixels
+    beyond a factor 2, or a distortion that maps the image outside itself (the radial distortion
+    folds back before it reaches the image corners: those pixels are the image of no ray, e.g.
+    k1 = -5 for images that are already undistorted; Hartley & Zisserman 2003, section 7.4)."""
+    half_width = max(camera.cx, camera.width - camera.cx) / camera.fx
+    half_height = max(camera.cy, camera.height - camera.cy) / camera.fy
+    if camera.model == "pinhole":
+        half_fov = np.degrees(np.arctan(max(half_width, half_height)))
+        if half_fov > PINHOLE_MAX_HALF_FOV_DEG:
+            return (f"fx = {camera.fx:g}, fy = {camera.fy:g} px give a field of view of {2 * half_fov:.1f} degrees: a pinhole camera cannot "
+                    f"see beyond {2 * PINHOLE_MAX_HALF_FOV_DEG:g} (focal length in mm or m instead of pixels? a fisheye lens?)")
+    else:
+        half_fov = np.degrees(max(half_width, half_height))
+        if half_fov >= 180.0:
+            return f"fx = {camera.fx:g}, fy = {camera.fy:g} px give a fisheye field of view over 360 degrees (focal length in mm or m instead of pixels?)"
+    if np.degrees(np.arctan(min(half_width, half_height))) < MIN_HALF_FOV_DEG:
+        return f"fx = {camera.fx:g}, fy = {camera.fy:g} px give a field of view under {2 * MIN_HALF_FOV_DEG:g} degrees (focal length in the wrong unit?)"
+    ratio = camera.fx / camera.fy
+    if not 1.0 / MAX_ASPECT_RATIO <= ratio <= MAX_ASPECT_RATIO:
+        return f"fx / fy = {ratio:.3g}: pixels that are not square by more than a factor {MAX_ASPECT_RATIO:g} (fx and fy of different cameras?)"
+    if not any(camera.distortion):
+        return None
+    corners = np.array([[-0.5, -0.5], [camera.width - 0.5, -0.5], [-0.5, camera.height - 0.5], [camera.width - 0.5, camera.height - 0.5]])
+    corner_radius = float(np.max(np.hypot((corners[:, 0] - camera.cx) / camera.fx, (corners[:, 1] - camera.cy) / camera.fy)))
+    limit = np.tan(np.radians(89.0)) if camera.model == "pinhole" else np.pi
+    radius = np.linspace(0.0, limit, 200_001)
+    distorted = _radial_function(camera, radius)
+    folds = np.flatnonzero(np.diff(distorted) <= 0.0)
+    reachable = float(distorted[folds[0]]) if len(folds) else float(distorted[-1])
+    if reachable < corner_radius:
+        return (f"distortion {list(camera.distortion)} maps the image outside itself: rays reach at most {reachable * camera.fx:.0f} px from the principal point, "
+                f"the image corners are {corner_radius * camera.fx:.0f} px away (distortion of another camera, or images that are already undistorted?)")
+    return None
+
+
+def rig_problem(rig: "Rig") -> str | None:
+    """The first physically impossible value of a rig (:func:`calibration_problem` of each camera,
+    mounts and axles beyond ``MAX_MOUNT_DISTANCE_M``), as ``"field: problem"``, or ``None``."""
+    for index, camera in enumerate(rig.cameras):
+        problem = calibration_problem(camera)
+        if problem:
+            return f"cameras[{index}] ({camera.name}): {problem}"
+        distance = float(np.linalg.norm(camera.center))
+        if distance > MAX_MOUNT_DISTANCE_M:
+            return f"cameras[{index}] ({camera.name}).T_body_camera.translation: {distance:.1f} m from the hitch (millimetres instead of metres?)"
+    for name, body in rig.bodies.items():
+        if abs(body.axle_x) > MAX_MOUNT_DISTANCE_M:
+            return f"bodies.{name}.axle_x: {body.axle_x:g} m from the hitch (millimetres instead of metres?)"
+    if rig.hitch_height > 10.0:
+        return f"hitch_height: {rig.hitch_height:g} m above the road (millimetres instead of metres?)"
+    return None
+
+
 # ---------------------------------------------------------------------- rig.yaml
 def _require(mapping: Any, key: str, where: str, source: str) -> Any:
     if not isinstance(mapping, dict) or key not in mapping or mapping[key] is None:
@@ -337,7 +408,7 @@ def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
         topic = spec.get("topic")
         if topic is not None and (not isinstance(topic, str) or not topic.strip()):
             raise ConfigError(f"{source}: {where}topic: expected a topic name, got {topic!r}")
-        if abs(np.linalg.norm(quaternion) - 1.0) > 1e-6:
+        if abs(np.linalg.norm(quaternion) - 1.0) > ROTATION_TOLERANCE:  # within: rounded, normalised below
             raise ConfigError(f"{source}: {where}T_body_camera.quaternion: not a unit quaternion (norm {np.linalg.norm(quaternion):.6f}); order is x y z w")
         cameras.append(
             Camera(
@@ -353,7 +424,11 @@ def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
     duplicated = sorted({name for name in names if names.count(name) > 1})
     if duplicated:
         raise ConfigError(f"{source}: cameras: duplicate camera names {duplicated}")
-    return Rig(bodies=bodies, cameras=tuple(cameras), hitch_height=hitch_height)
+    rig = Rig(bodies=bodies, cameras=tuple(cameras), hitch_height=hitch_height)
+    problem = rig_problem(rig)
+    if problem:
+        raise ConfigError(f"{source}: {problem}")
+    return rig
 
 
 def rig_to_dict(rig: Rig) -> dict:

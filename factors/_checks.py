@@ -12,9 +12,7 @@ import gtsam
 import numpy as np
 
 from ampc_vo.errors import BearingError
-from ampc_vo.geometry import check_bearings
-
-_ROTATION_TOLERANCE = 1e-6
+from ampc_vo.geometry import ROTATION_TOLERANCE, check_bearings, nearest_rotation, orthonormality_error
 
 
 def check_key(key: object, name: str = "key") -> int:
@@ -52,19 +50,21 @@ def check_positive_scalar(value: object, name: str) -> float:
 
 
 def check_rigid_transform(transform: object, name: str) -> np.ndarray:
-    """A 4x4 rigid transform (numpy array or ``gtsam.Pose3``) as a float64 (4, 4) array."""
+    """A 4x4 rigid transform (numpy array or ``gtsam.Pose3``) as a float64 (4, 4) array; a rotation
+    within :data:`~ampc_vo.geometry.ROTATION_TOLERANCE` of orthonormal (rounded) is projected onto
+    the nearest rotation, a worse one is an error."""
     matrix = transform.matrix() if isinstance(transform, gtsam.Pose3) else np.asarray(transform, dtype=float)
     if matrix.shape != (4, 4):
         raise ValueError(f"{name} must be a 4x4 rigid transform, got shape {matrix.shape}")
     if not np.all(np.isfinite(matrix)):
         raise ValueError(f"{name} contains NaN or infinite values")
     rotation = matrix[:3, :3]
-    if (
-        np.max(np.abs(rotation.T @ rotation - np.eye(3))) > _ROTATION_TOLERANCE
-        or np.linalg.det(rotation) <= 0.0
-        or np.max(np.abs(matrix[3] - [0.0, 0.0, 0.0, 1.0])) > 0.0
-    ):
-        raise ValueError(f"{name} is not a rigid transform (rotation not orthonormal or bad last row)")
+    error = orthonormality_error(rotation)
+    if error > ROTATION_TOLERANCE or np.linalg.det(rotation) <= 0.0 or np.max(np.abs(matrix[3] - [0.0, 0.0, 0.0, 1.0])) > 0.0:
+        raise ValueError(f"{name} is not a rigid transform (rotation not orthonormal: error {error:.2g} > {ROTATION_TOLERANCE:g}, or bad last row)")
+    if error > 1e-12:
+        matrix = matrix.copy()
+        matrix[:3, :3] = nearest_rotation(rotation)
     return matrix
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ampc_vo.errors import AmpcError
+from ampc_vo.tools.cli import exit_codes  # noqa: E402
 from ampc_vo.frontend.multi_camera import MultiCameraFrontend
 from ampc_vo.config import TrackerConfig
 from ampc_vo.rig import Body, Camera, Rig
@@ -77,6 +78,7 @@ def dataset_frames(path: Path, count: int) -> tuple[Rig, list[dict[str, np.ndarr
     return dataset.rig, frames, ()
 
 
+@exit_codes
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dataset", type=Path, nargs="?", help="dataset folder with images or KITTI folder (default: synthetic)")
@@ -87,17 +89,13 @@ def main() -> int:
     parser.add_argument("--cv-threads", type=int, help="cv2.setNumThreads for this process (default: OpenCV's choice)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        if args.dataset is None:
-            rig, frames = synthetic_frames(args.frames)
-            stereo_pairs: tuple[tuple[str, str], ...] = ()
-            source = "synthetic"
-        else:
-            rig, frames, stereo_pairs = dataset_frames(args.dataset, args.frames)
-            source = str(args.dataset)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
+    if args.dataset is None:
+        rig, frames = synthetic_frames(args.frames)
+        stereo_pairs: tuple[tuple[str, str], ...] = ()
+        source = "synthetic"
+    else:
+        rig, frames, stereo_pairs = dataset_frames(args.dataset, args.frames)
+        source = str(args.dataset)
     if args.cv_threads is not None:
         import cv2
 

@@ -23,12 +23,13 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ampc_vo.config import FRONTEND_WORKERS, load_config  # noqa: E402
-from ampc_vo.errors import AmpcError  # noqa: E402
+from ampc_vo.tools.cli import exit_codes  # noqa: E402
 
 
 REFERENCE_WORKER = "thread"  # the frontend in a worker thread of the backend's process (before the process worker)
 
 
+@exit_codes
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dataset", type=Path, nargs="?", default=None, help="dataset folder with images (default: the demo)")
@@ -37,28 +38,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", nargs="+", choices=FRONTEND_WORKERS, default=["process", REFERENCE_WORKER],
                         help=f"frontend workers to time, in turn (default: process, and {REFERENCE_WORKER} as the reference)")
     args = parser.parse_args(argv)
-    try:
-        from ampc_vo.tools.demo import demo_dataset
-        from ampc_vo.tools.runner import run_sequence
-        from ampc_vo.frontend.sources import open_sequence
+    from ampc_vo.tools.demo import demo_dataset
+    from ampc_vo.tools.runner import run_sequence
+    from ampc_vo.frontend.sources import open_sequence
 
-        base = load_config(args.config)
-        dataset = args.dataset or demo_dataset()
-        speeds = {}
-        for worker in args.workers:
-            config = dataclasses.replace(base, frontend_worker=worker)
-            sequence = open_sequence(dataset, config, stop=args.frames)
-            load_before = os.getloadavg()[0]
-            with tempfile.TemporaryDirectory() as out:
-                summary, _ = run_sequence(sequence, config, out, progress=False)
-            if not speeds:
-                print(f"dataset {sequence.path} ({sequence.kind}), cameras {', '.join(sequence.rig.camera_names)}")
-                print(f"frames {summary.frames}, keyframes {summary.keyframes} ({summary.keyframes / max(summary.frames, 1):.2f} per frame)")
-            speeds[worker] = summary.frames_per_second
-            _print_run(worker, summary, load_before)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    base = load_config(args.config)
+    dataset = args.dataset or demo_dataset()
+    speeds = {}
+    for worker in args.workers:
+        config = dataclasses.replace(base, frontend_worker=worker)
+        sequence = open_sequence(dataset, config, stop=args.frames)
+        load_before = os.getloadavg()[0]
+        with tempfile.TemporaryDirectory() as out:
+            summary, _ = run_sequence(sequence, config, out, progress=False)
+        if not speeds:
+            print(f"dataset {sequence.path} ({sequence.kind}), cameras {', '.join(sequence.rig.camera_names)}")
+            print(f"frames {summary.frames}, keyframes {summary.keyframes} ({summary.keyframes / max(summary.frames, 1):.2f} per frame)")
+        speeds[worker] = summary.frames_per_second
+        _print_run(worker, summary, load_before)
     if len(speeds) > 1:
         reference = REFERENCE_WORKER if REFERENCE_WORKER in speeds else list(speeds)[-1]
         print(f"speed against frontend_worker {reference} (same run): "

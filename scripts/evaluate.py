@@ -5,6 +5,10 @@
 
 Reads OUT/tractor.tum, OUT/trailer.tum, OUT/hitch.csv (and OUT/timing.json if present) and
 DATASET/groundtruth.csv (a KITTI folder: poses.txt, compared in the left-camera frame); writes OUT/metrics.json and OUT/evaluation.png and prints a table.
+Only files the run recorded in OUT/run.json are read; a run still writing, a stale file of another
+run, or a run of another dataset folder is refused (exit 2, nothing written).
+
+Exit codes (ampc_vo.tools.cli): 0 done, 1 failed, 2 bad input, 130 SIGINT, 143 SIGTERM.
 """
 from __future__ import annotations
 
@@ -15,9 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
-from ampc_vo.errors import AmpcError  # noqa: E402
-from ampc_vo.tools.evaluation import METRICS_FILE, PLOT_FILE, check_run_dataset, evaluate_output, plot_evaluation, write_metrics  # noqa: E402
-from ampc_vo.io.datasets import load_groundtruth
+from ampc_vo.tools.cli import ExitContext, run_cli  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -34,19 +36,20 @@ def main(argv: list[str] | None = None) -> int:
     if not args.max_time_diff > 0:
         parser.error(f"--max-time-diff must be > 0 (seconds), got {args.max_time_diff}")
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        truth = load_groundtruth(args.dataset)
-        check_run_dataset(args.out, args.dataset)
-        evaluation = evaluate_output(args.out, truth, args.seconds_per_frame, args.max_time_diff)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    write_metrics(evaluation.metrics, args.out / METRICS_FILE)
-    if not args.no_plot:
-        plot_evaluation(evaluation, args.out / PLOT_FILE, title=args.title or str(args.out))
+    return run_cli(lambda context: _evaluate(args, context))
+
+
+def _evaluate(args: argparse.Namespace, context: ExitContext) -> int:
+    """The evaluation itself; errors and interrupts become exit codes in :func:`run_cli`."""
+    from ampc_vo.io.datasets import load_groundtruth
+    from ampc_vo.tools.evaluation import evaluate_run_folder, require_run_dataset
+
+    truth = load_groundtruth(args.dataset)
+    require_run_dataset(args.out, args.dataset)
+    evaluation, written = evaluate_run_folder(args.out, truth, args.seconds_per_frame, args.max_time_diff, title=args.title, plot=not args.no_plot)
     print(f"evaluation of {args.out} against {args.dataset}")
     print(evaluation.metrics.table())
-    print(f"wrote {args.out / METRICS_FILE}" + ("" if args.no_plot else f" and {args.out / PLOT_FILE}"))
+    print("wrote " + " and ".join(str(path) for path in written))
     return 0
 
 

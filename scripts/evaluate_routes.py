@@ -20,7 +20,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ampc_vo.config import load_config  # noqa: E402
-from ampc_vo.errors import AmpcError, ConfigError  # noqa: E402
+from ampc_vo.errors import ConfigError  # noqa: E402
+from ampc_vo.tools.cli import exit_codes  # noqa: E402
 
 ROUTES = Path(__file__).resolve().parents[1] / "configs" / "sim"
 HEADER = ("| route | distance | tractor ATE | hitch RMSE / max | frames/s |", "|---|---|---|---|---|")
@@ -31,7 +32,7 @@ def evaluate_route(route: str, out: Path, rig: Path | None, images: bool, config
     import dataclasses
 
     from ampc_vo.io.folder import FRAMES_FILE
-    from ampc_vo.tools.evaluation import METRICS_FILE, PLOT_FILE, evaluate_output, plot_evaluation, write_metrics
+    from ampc_vo.tools.evaluation import evaluate_run_folder
     from ampc_vo.tools.runner import run_sequence
     from ampc_vo.sim.config import load_sim_config
     from ampc_vo.sim.simulation import simulate_dataset
@@ -50,15 +51,14 @@ def evaluate_route(route: str, out: Path, rig: Path | None, images: bool, config
     sequence = open_sequence(dataset, config)
     run_dir = out / "runs" / name
     summary, _ = run_sequence(sequence, config, run_dir, progress=False)
-    evaluation = evaluate_output(run_dir, sequence.truth)
-    write_metrics(evaluation.metrics, run_dir / METRICS_FILE)
-    plot_evaluation(evaluation, run_dir / PLOT_FILE, title=f"{name} ({sequence.kind})")
+    evaluation, _ = evaluate_run_folder(run_dir, sequence.truth, title=f"{name} ({sequence.kind})")
     metrics = evaluation.metrics
     hitch = "-" if metrics.hitch_rmse_deg is None else f"{metrics.hitch_rmse_deg:.2f}° / {metrics.hitch_max_deg:.2f}°"
     return (f"| {name}, {sequence.kind} | {metrics.distance_m:.0f} m | {metrics.tractor_ate_m:.2f} m "
             f"({100.0 * metrics.tractor_ate_m / metrics.distance_m:.2f} %) | {hitch} | {summary.frames_per_second:.1f} |")
 
 
+@exit_codes
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True, help="folder for the datasets, runs and routes.md")
@@ -68,18 +68,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", type=Path, default=None, help="VO config (default: the built-in defaults)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        if args.rig is not None and not args.rig.is_file():
-            raise ConfigError(f"{args.rig}: rig file not found")
-        config = load_config(args.config)
-        rows = list(HEADER)
-        print("\n".join(HEADER), flush=True)
-        for route in args.routes:
-            rows.append(evaluate_route(route, args.out, args.rig, not args.no_images, config))
-            print(rows[-1], flush=True)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    if args.rig is not None and not args.rig.is_file():
+        raise ConfigError(f"{args.rig}: rig file not found")
+    config = load_config(args.config)
+    rows = list(HEADER)
+    print("\n".join(HEADER), flush=True)
+    for route in args.routes:
+        rows.append(evaluate_route(route, args.out, args.rig, not args.no_images, config))
+        print(rows[-1], flush=True)
     (args.out / "routes.md").write_text("\n".join(rows) + "\n", encoding="utf-8")
     print(f"wrote {args.out / 'routes.md'}")
     return 0

@@ -20,7 +20,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ampc_vo.config import load_config  # noqa: E402
-from ampc_vo.errors import AmpcError  # noqa: E402
+from ampc_vo.tools.cli import exit_codes  # noqa: E402
 from ampc_vo.tools.experiments import CAMERA_AXES, miscalibrated_rig, score_on_simulation  # noqa: E402
 from ampc_vo.sim.simulation import simulate  # noqa: E402
 
@@ -33,6 +33,7 @@ def _row(label: str, metrics, reference=None) -> str:
             f"{metrics.hitch_rmse_deg:.2f} / {metrics.hitch_max_deg:.2f} deg{ratio} |")
 
 
+@exit_codes
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--route", default="demo", help="route file in configs/sim (default: demo)")
@@ -40,23 +41,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--axes", nargs="+", choices=sorted(CAMERA_AXES), default=["tilt", "pan", "roll"])
     parser.add_argument("--config", type=Path, default=None, help="VO config (default: the built-in defaults)")
     args = parser.parse_args(argv)
-    try:
-        config = dataclasses.replace(load_config(args.config), mode="full")
-        result = simulate(ROUTES / f"{args.route}.yaml")
-        reference = score_on_simulation(result, config)
-        print(f"route {args.route}, mounts rotated by {args.degrees:g} deg")
-        print("| calibration | tractor ATE | hitch RMSE / max | hitch RMSE against exact |")
-        print("|---|---|---|---|")
-        print(_row("exact", reference, reference), flush=True)
-        for camera in result.rig.cameras:
-            for axis in args.axes:
-                rig = miscalibrated_rig(result.rig, (camera.name,), axis, args.degrees)
-                print(_row(f"{camera.name} ({camera.body}) {axis}", score_on_simulation(result, config, rig), reference), flush=True)
-        every = miscalibrated_rig(result.rig, result.rig.camera_names, "tilt", args.degrees)
-        print(_row("every camera tilt", score_on_simulation(result, config, every), reference), flush=True)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    config = dataclasses.replace(load_config(args.config), mode="full")
+    result = simulate(ROUTES / f"{args.route}.yaml")
+    reference = score_on_simulation(result, config)
+    print(f"route {args.route}, mounts rotated by {args.degrees:g} deg")
+    print("| calibration | tractor ATE | hitch RMSE / max | hitch RMSE against exact |")
+    print("|---|---|---|---|")
+    print(_row("exact", reference, reference), flush=True)
+    for camera in result.rig.cameras:
+        for axis in args.axes:
+            rig = miscalibrated_rig(result.rig, (camera.name,), axis, args.degrees)
+            print(_row(f"{camera.name} ({camera.body}) {axis}", score_on_simulation(result, config, rig), reference), flush=True)
+    every = miscalibrated_rig(result.rig, result.rig.camera_names, "tilt", args.degrees)
+    print(_row("every camera tilt", score_on_simulation(result, config, every), reference), flush=True)
     return 0
 
 

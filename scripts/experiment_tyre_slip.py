@@ -22,7 +22,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ampc_vo.config import load_config  # noqa: E402
-from ampc_vo.errors import AmpcError  # noqa: E402
+from ampc_vo.tools.cli import exit_codes  # noqa: E402
 from ampc_vo.tools.experiments import score_on_simulation  # noqa: E402
 from ampc_vo.geometry import wrap_angle, yaw_of  # noqa: E402
 from ampc_vo.io.groundtruth import Trajectory  # noqa: E402
@@ -51,24 +51,21 @@ def run_case(route: str, slip_deg: float, config) -> dict:
             "hitch_rmse_deg": metrics.hitch_rmse_deg, "hitch_max_deg": metrics.hitch_max_deg}
 
 
+@exit_codes
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--routes", nargs="+", default=["city_block", "suburb"], help="route files in configs/sim")
     parser.add_argument("--slips", nargs="+", type=float, default=[0.0, 0.5, 1.0], help="tyre_slip_deg_per_mps2 values")
     parser.add_argument("--config", type=Path, default=None, help="VO config (default: the built-in defaults)")
     args = parser.parse_args(argv)
-    try:
-        config = dataclasses.replace(load_config(args.config), mode="full")
-        print("| route | slip setting (deg per m/s^2) | largest axle slip | tractor ATE | hitch RMSE / max |")
-        print("|---|---|---|---|---|")
-        for route in args.routes:
-            for slip in args.slips:
-                row = run_case(route, slip, config)
-                print(f"| {route} | {slip:g} | {row['largest_slip_deg']:.1f} deg | {row['ate_m']:.2f} m ({row['ate_percent']:.2f} %) | "
-                      f"{row['hitch_rmse_deg']:.2f} / {row['hitch_max_deg']:.2f} deg |", flush=True)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    config = dataclasses.replace(load_config(args.config), mode="full")
+    print("| route | slip setting (deg per m/s^2) | largest axle slip | tractor ATE | hitch RMSE / max |")
+    print("|---|---|---|---|---|")
+    for route in args.routes:
+        for slip in args.slips:
+            row = run_case(route, slip, config)
+            print(f"| {route} | {slip:g} | {row['largest_slip_deg']:.1f} deg | {row['ate_m']:.2f} m ({row['ate_percent']:.2f} %) | "
+                  f"{row['hitch_rmse_deg']:.2f} / {row['hitch_max_deg']:.2f} deg |", flush=True)
     return 0
 
 

@@ -24,6 +24,7 @@ from evo.core import metrics  # noqa: E402
 from ampc_vo.tools.baseline import StereoPnpConfig, stereo_pnp_odometry  # noqa: E402
 from ampc_vo.io.kitti import load_kitti  # noqa: E402
 from ampc_vo.errors import AmpcError  # noqa: E402
+from ampc_vo.tools.cli import exit_codes  # noqa: E402
 from ampc_vo.io.groundtruth import GroundTruth  # noqa: E402
 from ampc_vo.tools.evaluation import _evo_trajectory, evaluate
 from ampc_vo.io.outputs import Trajectory, write_tum  # noqa: E402
@@ -41,28 +42,25 @@ def frame_to_frame_rpe(truth: np.ndarray, estimate: np.ndarray, timestamps: np.n
     return float(translation.get_statistic(metrics.StatisticsType.rmse)), float(rotation.get_statistic(metrics.StatisticsType.rmse))
 
 
+@exit_codes
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dataset", type=Path, nargs="?", default=DEFAULT_CLIP, help="KITTI odometry folder")
     parser.add_argument("--out", type=Path, help="folder for baseline_tractor.tum and baseline_metrics.json")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        dataset = load_kitti(args.dataset)
-        if dataset.truth is None:
-            raise AmpcError(f"{args.dataset}: no poses.txt, nothing to evaluate against")
-        start = time.perf_counter()
-        result = stereo_pnp_odometry(dataset.rig, ((dataset.timestamps[k], dataset.images(k)) for k in range(len(dataset))), StereoPnpConfig())
-        seconds = time.perf_counter() - start
-        estimate = Trajectory(result.timestamps, result.T_world_body)
-        # dataset.truth compares in KITTI's left-camera frame (T_tractor_reference); the body frame too
-        body_truth = GroundTruth(dataset.timestamps, dataset.T_world_tractor)
-        body = evaluate(body_truth, estimate, seconds_per_frame=seconds / len(dataset)).metrics
-        camera = evaluate(dataset.truth, estimate).metrics
-        rpe_m, rpe_deg = frame_to_frame_rpe(dataset.T_world_tractor, result.T_world_body, dataset.timestamps)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
+    dataset = load_kitti(args.dataset)
+    if dataset.truth is None:
+        raise AmpcError(f"{args.dataset}: no poses.txt, nothing to evaluate against")
+    start = time.perf_counter()
+    result = stereo_pnp_odometry(dataset.rig, ((dataset.timestamps[k], dataset.images(k)) for k in range(len(dataset))), StereoPnpConfig())
+    seconds = time.perf_counter() - start
+    estimate = Trajectory(result.timestamps, result.T_world_body)
+    # dataset.truth compares in KITTI's left-camera frame (T_tractor_reference); the body frame too
+    body_truth = GroundTruth(dataset.timestamps, dataset.T_world_tractor)
+    body = evaluate(body_truth, estimate, seconds_per_frame=seconds / len(dataset)).metrics
+    camera = evaluate(dataset.truth, estimate).metrics
+    rpe_m, rpe_deg = frame_to_frame_rpe(dataset.T_world_tractor, result.T_world_body, dataset.timestamps)
     summary = {
         "frames": len(dataset),
         "distance_m": body.distance_m,

@@ -30,7 +30,8 @@ import numpy as np  # noqa: E402
 from ampc_vo.tools.baseline import StereoPnpConfig, stereo_pnp_odometry  # noqa: E402
 from ampc_vo.config import load_config  # noqa: E402
 from ampc_vo.errors import AmpcError  # noqa: E402
-from ampc_vo.tools.evaluation import METRICS_FILE, PLOT_FILE, evaluate, evaluate_output, plot_evaluation, write_metrics  # noqa: E402
+from ampc_vo.tools.cli import exit_codes  # noqa: E402
+from ampc_vo.tools.evaluation import METRICS_FILE, evaluate, evaluate_run_folder, write_metrics  # noqa: E402
 from ampc_vo.io.outputs import Trajectory, write_tum  # noqa: E402
 from ampc_vo.tools.runner import run_sequence  # noqa: E402
 from ampc_vo.frontend.sources import default_config_path, open_sequence  # noqa: E402
@@ -56,9 +57,7 @@ def compare(dataset: Path, out: Path, config_path: Path | None) -> dict:
 
     ours_dir = out / "ours"
     summary, _ = run_sequence(sequence, config, ours_dir, progress=False)
-    ours = evaluate_output(ours_dir, sequence.truth)
-    write_metrics(ours.metrics, ours_dir / METRICS_FILE)
-    plot_evaluation(ours, ours_dir / PLOT_FILE, title=f"ampc-vo on {dataset.name}")
+    ours, _ = evaluate_run_folder(ours_dir, sequence.truth, title=f"ampc-vo on {dataset.name}")
 
     from ampc_vo.io.kitti import load_kitti
 
@@ -90,6 +89,7 @@ def format_table(table: dict) -> str:
     return "\n".join(lines)
 
 
+@exit_codes
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dataset", type=Path, nargs="?", default=DEFAULT_CLIP, help="KITTI odometry folder")
@@ -97,15 +97,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", type=Path, default=None, help="VO config (default: configs/vo/kitti.yaml)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        if args.out is None:
-            with tempfile.TemporaryDirectory() as folder:
-                table = compare(args.dataset, Path(folder), args.config)
-        else:
-            table = compare(args.dataset, args.out, args.config)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    if args.out is None:
+        with tempfile.TemporaryDirectory() as folder:
+            table = compare(args.dataset, Path(folder), args.config)
+    else:
+        table = compare(args.dataset, args.out, args.config)
     print(f"KITTI {args.dataset}: ampc-vo vs stereo PnP baseline (evo, left-camera frame; {np.round(table['ours']['distance_m'], 1)} m)")
     print(format_table(table))
     if args.out is not None:

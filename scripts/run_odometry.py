@@ -12,7 +12,13 @@ built-in demo runs: the demo route is rendered into a cache folder on first use
 
 Writes OUT/tractor.tum, OUT/trailer.tum, OUT/hitch.csv incrementally (a crash or Ctrl-C keeps what
 was done), OUT/timing.json and OUT/config.yaml, optionally a Rerun recording, and prints a summary
-(frames, keyframes, distance, fps, time per frame of the frontend and the backend).
+(frames, keyframes, distance, fps, time per frame of the frontend and the backend). OUT holds one
+run: a second run into it while the first runs is refused; the files of an earlier run are removed
+first; OUT/run.json records the run (ampc_vo.io.run_folder).
+
+Exit codes (ampc_vo.tools.cli): 0 done, 1 failed (nothing measured, disk full, worker died),
+2 bad input, 130 SIGINT, 143 SIGTERM; every exit prints one line. Interrupted runs keep the
+estimates written so far.
 """
 from __future__ import annotations
 
@@ -26,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 
 from ampc_vo.config import MODES, SOURCES, load_config  # noqa: E402
 from ampc_vo.errors import AmpcError  # noqa: E402
+from ampc_vo.tools.cli import ExitContext, run_cli  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -42,44 +49,43 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--wheel-speed-from-groundtruth", type=float, default=None, metavar="SIGMA_M",
                         help="simulate wheel odometry from the ground truth with this noise (m) and enable the wheel-speed factor")
     args = parser.parse_args(argv)
-    try:
-        from ampc_vo.frontend.sources import default_config_path
+    if args.dataset is not None and args.out is None:
+        parser.error("--out is required with a DATASET")
+    return run_cli(lambda context: _run(args, context))
 
-        config = load_config(args.config if args.config is not None else default_config_path(args.dataset))
-        if args.mode:
-            config = config.with_mode(args.mode)
-        if args.source:
-            config = dataclasses.replace(config, source=args.source)
-        logging.basicConfig(level=config.output.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
-        demo = args.dataset is None
-        if demo:
-            from ampc_vo.tools.demo import demo_dataset
 
-            dataset_path = demo_dataset(progress=not args.no_progress)
-            out = args.out or Path("out/demo")
-        else:
-            if args.out is None:
-                parser.error("--out is required with a DATASET")
-            dataset_path, out = args.dataset, args.out
-        from ampc_vo.tools.runner import run_sequence
-        from ampc_vo.frontend.sources import open_sequence
+def _run(args: argparse.Namespace, context: ExitContext) -> int:
+    """The run itself; errors and interrupts become exit codes in :func:`run_cli`."""
+    from ampc_vo.frontend.sources import default_config_path
 
-        sequence = open_sequence(dataset_path, config, args.start, args.stop)
-        wheel = None
-        if args.wheel_speed_from_groundtruth is not None:
-            if sequence.truth is None:
-                raise AmpcError(f"{dataset_path}: --wheel-speed-from-groundtruth needs ground truth")
-            from ampc_vo.scale.wheel import wheel_odometry_from_poses
+    config = load_config(args.config if args.config is not None else default_config_path(args.dataset))
+    if args.mode:
+        config = config.with_mode(args.mode)
+    if args.source:
+        config = dataclasses.replace(config, source=args.source)
+    logging.basicConfig(level=config.output.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
+    demo = args.dataset is None
+    if demo:
+        from ampc_vo.tools.demo import demo_dataset
 
-            config = dataclasses.replace(config, scale=dataclasses.replace(config.scale, wheel_speed=True))
-            wheel = wheel_odometry_from_poses(sequence.truth.timestamps, sequence.truth.T_world_tractor, sequence.rig.axle_x("tractor"), args.wheel_speed_from_groundtruth)
-        summary, _ = run_sequence(sequence, config, out, rerun_path=args.rerun, progress=False if args.no_progress else None, wheel_odometry=wheel)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"interrupted: the estimates written so far are in {out}", file=sys.stderr)
-        return 130
+        dataset_path = demo_dataset(progress=not args.no_progress)
+        out = args.out or Path("out/demo")
+    else:
+        dataset_path, out = args.dataset, args.out
+    from ampc_vo.tools.runner import run_sequence
+    from ampc_vo.frontend.sources import open_sequence
+
+    sequence = open_sequence(dataset_path, config, args.start, args.stop)
+    wheel = None
+    if args.wheel_speed_from_groundtruth is not None:
+        if sequence.truth is None:
+            raise AmpcError(f"{dataset_path}: --wheel-speed-from-groundtruth needs ground truth")
+        from ampc_vo.scale.wheel import wheel_odometry_from_poses
+
+        config = dataclasses.replace(config, scale=dataclasses.replace(config.scale, wheel_speed=True))
+        wheel = wheel_odometry_from_poses(sequence.truth.timestamps, sequence.truth.T_world_tractor, sequence.rig.axle_x("tractor"), args.wheel_speed_from_groundtruth)
+    context.outputs = out  # from here on an interrupt keeps what was written there
+    summary, _ = run_sequence(sequence, config, out, rerun_path=args.rerun, progress=False if args.no_progress else None, wheel_odometry=wheel)
     print(f"{dataset_path} ({sequence.kind}) -> {out}  (mode {summary.mode})")
     print(f"frames {summary.frames}  keyframes {summary.keyframes}  distance {summary.distance_m:.1f} m  "
           f"{summary.frames_per_second:.1f} frames/s  backend {summary.backend_ms_median:.1f} ms/keyframe (median)")
@@ -88,13 +94,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.rerun is not None:
         print(f"Rerun recording: {args.rerun}  (view: rerun {args.rerun})")
     if demo and sequence.truth is not None:
-        from ampc_vo.tools.evaluation import METRICS_FILE, PLOT_FILE, evaluate_output, plot_evaluation, write_metrics
+        from ampc_vo.tools.evaluation import evaluate_run_folder
 
-        evaluation = evaluate_output(out, sequence.truth)
-        write_metrics(evaluation.metrics, out / METRICS_FILE)
-        plot_evaluation(evaluation, out / PLOT_FILE, title="ampc-vo demo (rendered images)")
+        evaluation, written = evaluate_run_folder(out, sequence.truth, title="ampc-vo demo (rendered images)")
         print(evaluation.metrics.table())
-        print(f"wrote {out / METRICS_FILE} and {out / PLOT_FILE}")
+        print("wrote " + " and ".join(str(path) for path in written))
     return 0
 
 

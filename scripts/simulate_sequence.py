@@ -19,11 +19,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
-from ampc_vo.errors import AmpcError, ConfigError  # noqa: E402
+from ampc_vo.errors import ConfigError  # noqa: E402
+from ampc_vo.tools.cli import exit_codes  # noqa: E402
 from ampc_vo.sim.config import load_sim_config  # noqa: E402
 from ampc_vo.sim.simulation import simulate_dataset  # noqa: E402
 
 
+@exit_codes
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Simulate a tractor-trailer sequence into a dataset folder.")
     parser.add_argument("--config", required=True, help="simulation config (configs/sim/*.yaml)")
@@ -34,16 +36,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     started = time.perf_counter()
-    try:
-        config = load_sim_config(args.config)
-        if args.rig is not None:
-            if not args.rig.is_file():
-                raise ConfigError(f"{args.rig}: rig file not found")
-            config = dataclasses.replace(config, rig_path=args.rig.resolve())
-        result = simulate_dataset(config, args.out, with_images=not args.no_images, progress=True)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
+    config = load_sim_config(args.config)
+    if args.rig is not None:
+        if not args.rig.is_file():
+            raise ConfigError(f"{args.rig}: rig file not found")
+        config = dataclasses.replace(config, rig_path=args.rig.resolve())
+    result = simulate_dataset(config, args.out, with_images=not args.no_images, progress=True)
     trajectory = result.trajectory
     print(f"wrote {args.out}: {len(trajectory)} frames, {trajectory.timestamps[-1] - trajectory.timestamps[0]:.1f} s, "
           f"cameras {', '.join(result.rig.camera_names)}")

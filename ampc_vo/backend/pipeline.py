@@ -24,17 +24,18 @@ from typing import Callable, Iterable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from ampc_vo.config import VoConfig, save_config
+from ampc_vo.config import VoConfig, config_yaml
+from ampc_vo.errors import NothingMeasuredError
 from ampc_vo.geometry import make_pose, relative_pose, rot_z, yaw_of
 from ampc_vo.backend.motion_init import MotionInitializer, TractorMotion, camera_pairs
 from ampc_vo.observations import FrameObservations
 from ampc_vo.io.outputs import OutputWriter
+from ampc_vo.io.run_folder import CONFIG_FILE, TIMING_FILE, RunFolder
 from ampc_vo.rig import Rig
 from ampc_vo.backend.smoother import ArticulatedSmoother, KeyframeEstimate, MotionStatus
 
 logger = logging.getLogger(__name__)
 
-TIMING_FILE = "timing.json"
 
 
 @dataclass(frozen=True)
@@ -85,6 +86,8 @@ class RunSummary:
     statuses: dict = field(default_factory=dict)
     mode: str = "full"
     dataset: str | None = None  # the folder the frames came from (absolute; evaluate.py checks it)
+    unscaled_keyframes: int = 0  # bootstrap keyframes without poses: their speed was never measured
+    run_id: str | None = None  # the run that wrote the output folder (ampc_vo.io.run_folder)
 
 
 class OdometryPipeline:
@@ -112,11 +115,13 @@ class OdometryPipeline:
         self._bootstrapping = True
         self._bootstrap: list[tuple[FrameObservations, TractorMotion | None]] = []
         self._bootstrap_speeds: list[float | None] = []  # measured metric speed of each bootstrap pair
+        self._unscaled_frames = 0  # bootstrap keyframes dropped: their speed was never measured
 
     # ------------------------------------------------------------------ prediction
     def _predicted(self, elapsed_s: float, velocity: tuple[float, float] | None) -> np.ndarray:
         """Constant-velocity tractor (or trailer) motion over ``elapsed_s``: arc of the last yaw rate
-        and speed (a straight 1 m/s guess before any motion was estimated)."""
+        and speed (before any motion was estimated a straight 1 m/s guess, used only as the RANSAC
+        chord prior of the scale bootstrap: it never reaches the outputs)."""
         yaw_rate, speed = velocity if velocity is not None else (0.0, 1.0)
         yaw = yaw_rate * elapsed_s
         chord = speed * elapsed_s
@@ -178,7 +183,10 @@ class OdometryPipeline:
     def _process_bootstrap(self, frame: FrameObservations, elapsed: float) -> list[KeyframeEstimate]:
         """Before metric scale was observed (straight start: DESIGN 2.3), keyframes are taken by
         time or rotation and buffered; once ``bootstrap_pairs`` keyframe pairs had an observable
-        chord, their median speed scales the buffered straight motions and all are replayed."""
+        chord (or ``bootstrap_max_s`` passed with at least one), their median speed scales the
+        buffered straight motions and all are replayed. Without any measured chord nothing is
+        published (no speed is assumed, issue 14): the buffer waits for one, keeping at most
+        ``bootstrap_max_s`` of keyframes (older ones get no poses, with a warning)."""
         scale = self.config.scale
         tractor = self.initializer.tractor(self._last_keyframe, frame, self._predicted(elapsed, None))
         rotation = abs(tractor.yaw_change) >= self.policy.min_rotation_rad
@@ -189,20 +197,39 @@ class OdometryPipeline:
         self._bootstrap.append((frame, tractor))
         self._bootstrap_speeds.append(None if measured is None else measured[0] / elapsed)
         self._last_keyframe = frame
-        # a measured metric chord (ground plane, stereo) is preferred to the 2-point chord, which is
-        # weak on a straight start (DESIGN 2.3)
-        speeds = [measured_speed if measured_speed is not None else motion.chord / (kf.timestamp - previous.timestamp)
-                  for (previous, _), (kf, motion), measured_speed in zip(self._bootstrap, self._bootstrap[1:], self._bootstrap_speeds)
-                  if measured_speed is not None or (motion is not None and motion.status is MotionStatus.OK)]
+        speeds = self._bootstrap_speed_samples()
         waited = frame.timestamp - self._bootstrap[0][0].timestamp
         if len(speeds) < scale.bootstrap_pairs and waited < scale.bootstrap_max_s:
             return []
-        speed = float(np.median(speeds)) if speeds else 1.0
         if not speeds:
-            logger.warning("frame %d: metric scale not observed within %.0f s (straight start?): assuming 1 m/s", frame.frame, waited)
-        else:
-            logger.info("frame %d: metric scale bootstrapped after %.1f s from %d keyframe pairs: %.2f m/s", frame.frame, waited, len(speeds), speed)
+            self._drop_unscaled_bootstrap(frame, waited)
+            return []
+        speed = float(np.median(speeds))
+        logger.info("frame %d: metric scale bootstrapped after %.1f s from %d keyframe pairs: %.2f m/s", frame.frame, waited, len(speeds), speed)
         return self._replay_bootstrap(speed)
+
+    def _bootstrap_speed_samples(self) -> list[float]:
+        """Measured speeds (m/s) of the buffered bootstrap keyframe pairs: a measured metric chord
+        (ground plane, stereo) where there is one, else the 2-point chord of an ``ok`` motion
+        (weak on a straight start, DESIGN 2.3); pairs with neither give none."""
+        return [measured_speed if measured_speed is not None else motion.chord / (kf.timestamp - previous.timestamp)
+                for (previous, _), (kf, motion), measured_speed in zip(self._bootstrap, self._bootstrap[1:], self._bootstrap_speeds)
+                if measured_speed is not None or (motion is not None and motion.status is MotionStatus.OK)]
+
+    def _drop_unscaled_bootstrap(self, frame: FrameObservations, waited: float) -> None:
+        """No metric chord within ``bootstrap_max_s``: keep waiting for one, but only over the last
+        ``bootstrap_max_s``; the keyframes before get no poses (nothing measured their speed)."""
+        horizon = frame.timestamp - self.config.scale.bootstrap_max_s
+        keep = next(index for index, (kf, _) in enumerate(self._bootstrap) if kf.timestamp >= horizon or kf is frame)
+        if keep == 0:
+            return
+        dropped = self._bootstrap[:keep]
+        if not self._unscaled_frames:
+            logger.warning("frame %d: no metric motion measured in %.0f s (nothing tracked, standing, or a straight start without "
+                           "ground-plane or stereo scale): no poses until it is; no speed is assumed", frame.frame, waited)
+        self._unscaled_frames += len(dropped)
+        self._bootstrap = [(self._bootstrap[keep][0], None)] + self._bootstrap[keep + 1:]
+        self._bootstrap_speeds = self._bootstrap_speeds[keep:]
 
     def _replay_bootstrap(self, speed: float) -> list[KeyframeEstimate]:
         buffered, self._bootstrap = self._bootstrap, []
@@ -223,12 +250,19 @@ class OdometryPipeline:
         return published
 
     def finish(self) -> list[KeyframeEstimate]:
-        """End of the stream: a bootstrap still waiting for scale is replayed with the 1 m/s guess;
-        with ``output.publish: lagged`` the keyframes still in the window are published."""
+        """End of the stream: a bootstrap still waiting for scale is replayed with the median of
+        the speeds it measured (fewer than ``bootstrap_pairs``), or, with none, publishes nothing
+        (no speed is assumed); with ``output.publish: lagged`` the keyframes still in the window
+        are published."""
         published: list[KeyframeEstimate] = []
         if self._bootstrapping and len(self._bootstrap) > 1:
-            logger.warning("stream ended before metric scale was observed: assuming 1 m/s")
-            published += self._replay_bootstrap(1.0)
+            speeds = self._bootstrap_speed_samples()
+            if speeds:
+                logger.info("stream ended during the scale bootstrap: scale from %d keyframe pairs", len(speeds))
+                published += self._replay_bootstrap(float(np.median(speeds)))
+            else:
+                self._unscaled_frames += len(self._bootstrap)
+                logger.warning("stream ended before any metric motion was measured: no poses for its last %d keyframes", len(self._bootstrap))
         remaining = self.smoother.flush()
         self._after_publish(remaining)
         return published + remaining
@@ -317,7 +351,7 @@ class OdometryPipeline:
             frames=self._frames, keyframes=len(self.estimates), distance_m=self._distance, seconds=seconds,
             seconds_per_frame=seconds / max(self._frames, 1), frames_per_second=self._frames / seconds if seconds > 0 else 0.0,
             backend_ms_median=float(np.median([t.total for t in timings]) * 1e3) if timings else 0.0,
-            backend_ms_breakdown=breakdown, statuses=dict(self._statuses), mode=self.config.mode,
+            backend_ms_breakdown=breakdown, statuses=dict(self._statuses), mode=self.config.mode, unscaled_keyframes=self._unscaled_frames,
         )
 
 
@@ -332,22 +366,39 @@ def run_on_frames(rig: Rig, config: VoConfig, frames: Iterable[FrameObservations
                   on_frame: Callable[[FrameObservations | None, list[KeyframeEstimate]], None] | None = None,
                   source_seconds: list[float] | None = None, dataset: str | Path | None = None) -> tuple[RunSummary, list[KeyframeEstimate]]:
     """Run the pipeline on any source of frames; with ``out_dir``, write the outputs incrementally,
-    ``timing.json`` and the config used (``config.yaml``). ``on_frame``: see
-    :meth:`OdometryPipeline.run`; ``source_seconds``: time spent producing each frame (the
-    frontend), filled while ``frames`` is consumed, added to the timing breakdown; ``dataset``:
-    the folder the frames come from, recorded in the summary."""
+    ``timing.json`` and the config used (``config.yaml``) into it as one run
+    (:class:`~ampc_vo.io.run_folder.RunFolder`: locked, earlier files removed, provenance in
+    ``run.json``). ``on_frame``: see :meth:`OdometryPipeline.run`; ``source_seconds``: time spent
+    producing each frame (the frontend), filled while ``frames`` is consumed, added to the timing
+    breakdown; ``dataset``: the folder the frames come from, recorded in the summary.
+
+    A run that published no pose raises :class:`~ampc_vo.errors.NothingMeasuredError` at the end
+    (after ``timing.json``): nothing was measured, and no motion is made up.
+    """
     with_trailer = rig.has_trailer and config.mode != "tractor_only"
     if out_dir is None:
         pipeline = OdometryPipeline(rig, config, wheel_odometry=wheel_odometry)
-        return _with_source(pipeline.run(frames, total, progress, on_frame), source_seconds, dataset), pipeline.estimates
-    out_dir = Path(out_dir)
-    with OutputWriter(out_dir, with_trailer=with_trailer) as writer:  # creates out_dir, or OutputError
-        save_config(config, out_dir / "config.yaml")
-        pipeline = OdometryPipeline(rig, config, writer, wheel_odometry=wheel_odometry)
         summary = _with_source(pipeline.run(frames, total, progress, on_frame), source_seconds, dataset)
-    if config.output.write_timing:
-        (out_dir / TIMING_FILE).write_text(json.dumps(asdict(summary), indent=2) + "\n", encoding="utf-8")
+        _require_measured(summary)
+        return summary, pipeline.estimates
+    with RunFolder(out_dir, dataset=dataset) as run, OutputWriter(out_dir, with_trailer=with_trailer, run=run) as writer:
+        run.write_text(CONFIG_FILE, run.tag + "\n" + config_yaml(config))
+        pipeline = OdometryPipeline(rig, config, writer, wheel_odometry=wheel_odometry)
+        summary = dataclasses.replace(_with_source(pipeline.run(frames, total, progress, on_frame), source_seconds, dataset), run_id=run.run_id)
+        if config.output.write_timing:
+            run.write_text(TIMING_FILE, json.dumps(asdict(summary), indent=2) + "\n")
+        _require_measured(summary)
     return summary, pipeline.estimates
+
+
+def _require_measured(summary: RunSummary) -> None:
+    """:class:`NothingMeasuredError` for a run that published no keyframe (issue 14)."""
+    if summary.keyframes:
+        return
+    if summary.frames < 2:
+        raise NothingMeasuredError(f"{summary.frames} frame(s): motion needs at least 2; no poses written")
+    raise NothingMeasuredError(f"no motion measured in {summary.frames} frames (nothing to track: blank or featureless images, "
+                               "or standing still, or no metric scale observed); no poses written")
 
 
 def _with_source(summary: RunSummary, source_seconds: list[float] | None, dataset: str | Path | None) -> RunSummary:

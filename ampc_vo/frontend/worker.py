@@ -13,7 +13,10 @@ started there, e.g. without ``/dev/shm``) and yields its items in order through 
 this process's loggers; an exception in the worker is raised here as the same exception (the
 worker's traceback is logged at DEBUG); a worker that dies without a word (killed, crashed) gives a
 :class:`~ampc_vo.errors.SourceError`. Closing the stream early (an error in the backend, Ctrl-C)
-stops the worker. The worker does not import the caller's ``__main__`` (multiprocessing's spawn
+stops the worker. The worker ends with its consumer whatever kills that (SIGTERM, SIGKILL, a
+crash): a watchdog thread in the worker waits on the parent's sentinel and exits the process the
+moment the parent is gone (:func:`_exit_with_parent`), so no orphan keeps multiprocessing's
+resource tracker alive either. The worker does not import the caller's ``__main__`` (multiprocessing's spawn
 would: it re-runs a script without a ``if __name__ == "__main__"`` guard and fails for code read
 from stdin), so ``make_stream`` must live in an importable module.
 """
@@ -23,9 +26,12 @@ import contextlib
 import logging
 import logging.handlers
 import multiprocessing
+import multiprocessing.connection
+import os
 import pickle
 import queue as queue_module
 import sys
+import threading
 import traceback
 import types
 from typing import Any, Callable, Iterator
@@ -71,8 +77,24 @@ class _ForwardingHandler(logging.handlers.QueueHandler):
             pass
 
 
+def _exit_with_parent() -> None:
+    """Exit this (worker) process as soon as its parent has ended, for whatever reason: a daemon
+    thread blocks on the parent's sentinel (a pipe that reads end-of-file when the parent dies) and
+    then calls ``os._exit`` (no clean-up that could block on the queue's pipe, nobody reads it)."""
+    parent = multiprocessing.parent_process()
+    if parent is None:
+        return
+
+    def watch() -> None:
+        multiprocessing.connection.wait([parent.sentinel])
+        os._exit(0)
+
+    threading.Thread(target=watch, name="parent-watchdog", daemon=True).start()
+
+
 def _worker_main(channel: Any, make_stream: Callable[..., Iterator[Any]], args: tuple, log_level: int) -> None:
     """Entry point of the worker process: produce every item, then a done marker (or the error)."""
+    _exit_with_parent()
     root = logging.getLogger()
     root.handlers[:] = [_ForwardingHandler(channel)]
     root.setLevel(log_level)
@@ -82,6 +104,7 @@ def _worker_main(channel: Any, make_stream: Callable[..., Iterator[Any]], args: 
                 _send(channel, (_STEP, item))
         _send(channel, (_DONE, None))
     except (KeyboardInterrupt, _ConsumerGone):  # Ctrl-C reaches the whole process group: the consumer handles it
+        channel.cancel_join_thread()  # items nobody will read must not keep this process from ending
         return
     except BaseException as error:  # noqa: BLE001 - everything goes back to the consumer
         details = traceback.format_exc()

@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from ampc_vo.errors import ConfigError, DatasetError
-from ampc_vo.geometry import pose_from_xyz_quat, pose_to_xyz_quat
+from ampc_vo.geometry import ROTATION_TOLERANCE, pose_from_xyz_quat, pose_to_xyz_quat
+from ampc_vo.io.frame_times import check_frame_times
 from ampc_vo.io.groundtruth import Trajectory
 from ampc_vo.io.measurements import MEASUREMENTS_FILE, Measurements, load_measurements, save_measurements
 from ampc_vo.rig import Rig, load_rig, save_rig
@@ -200,7 +201,7 @@ def _read_csv(path: Path) -> tuple[list[str], list[list[str]]]:
     if not path.is_file():
         raise DatasetError(f"{path}: file missing")
     try:
-        with open(path, newline="") as handle:
+        with open(path, newline="", encoding="utf-8-sig") as handle:  # -sig: a byte-order mark (spreadsheet export) is not part of the header
             rows = [row for row in csv.reader(handle) if row]
     except (OSError, UnicodeDecodeError, csv.Error) as error:
         raise DatasetError(f"{path}: cannot read CSV ({error})") from None
@@ -221,6 +222,23 @@ def _floats(path: Path, rows: list[list[str]], columns: slice, line_offset: int 
         raise DatasetError(f"{path}: not a number ({error})") from None
 
 
+def _check_inside(path: Path, image_paths: np.ndarray, camera_names: tuple[str, ...]) -> None:
+    """Image paths are relative to the dataset folder and stay inside it (no absolute path, no
+    ``..`` out of it): a frames.csv must not make the odometry open other files."""
+    for (row, column), relative in np.ndenumerate(image_paths):
+        if not relative:
+            continue
+        parts = Path(relative).parts
+        depth = 0
+        for part in parts:
+            depth += -1 if part == ".." else (0 if part == "." else 1)
+            if depth < 0:
+                break
+        if Path(relative).is_absolute() or relative.startswith(("/", "\\")) or (len(relative) > 1 and relative[1] == ":") or depth < 0:
+            raise DatasetError(f"{path}: line {row + 2}: image path {relative!r} of camera {camera_names[column]!r} leaves the dataset folder "
+                               "(image paths are relative to it, without '..' above it)")
+
+
 def _read_frames(path: Path, rig: Rig) -> tuple[np.ndarray, np.ndarray, tuple[str, ...], np.ndarray, dict[str, np.ndarray]]:
     header, rows = _read_csv(path)
     if header[:2] != ["frame", "timestamp"]:
@@ -239,8 +257,11 @@ def _read_frames(path: Path, rig: Rig) -> tuple[np.ndarray, np.ndarray, tuple[st
             raise DatasetError(f"{path}: line {number + 2}: expected {len(header)} columns, got {len(row)}")
     values = _floats(path, rows, slice(0, 2))
     frames = values[:, 0]
-    if np.any(frames != np.round(frames)):
-        raise DatasetError(f"{path}: frame indices must be integers")
+    wrong = np.flatnonzero(frames != np.arange(len(frames)))
+    if len(wrong):  # the frame number is the row: measurements.npz, --start/--stop and outputs refer to it
+        index = int(wrong[0])
+        raise DatasetError(f"{path}: line {index + 2}: frame {values[index, 0]:g}, expected {index} (frames are numbered 0, 1, 2, ... in row order; "
+                           f"{'a duplicate' if values[index, 0] in frames[:index] else 'a gap or reordering'})")
     timestamps = values[:, 1]
     if not np.all(np.isfinite(timestamps)):
         raise DatasetError(f"{path}: timestamps must be finite")
@@ -248,7 +269,9 @@ def _read_frames(path: Path, rig: Rig) -> tuple[np.ndarray, np.ndarray, tuple[st
     if len(decreasing):
         line = int(decreasing[0]) + 3
         raise DatasetError(f"{path}: timestamps not strictly increasing at line {line} ({timestamps[decreasing[0]]} then {timestamps[decreasing[0] + 1]})")
+    check_frame_times(timestamps, f"{path}: timestamp", line_offset=2)
     image_paths = np.array([[row[index].strip() for index in image_columns] for row in rows], dtype=object).reshape(len(rows), len(camera_names))
+    _check_inside(path, image_paths, camera_names)
     camera_timestamps = {}
     for camera, index in time_columns.items():
         times = _floats(path, rows, slice(index, index + 1))[:, 0]
@@ -284,7 +307,7 @@ def _read_groundtruth(path: Path, timestamps: np.ndarray) -> Trajectory:
         raise DatasetError(f"{path}: contains NaN or infinite values")
     for body, start in (("tractor", 4), ("trailer", 11)):
         norms = np.linalg.norm(values[:, start:start + 4], axis=1)
-        bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-6)
+        bad = np.flatnonzero(np.abs(norms - 1.0) > ROTATION_TOLERANCE)
         if len(bad):
             raise DatasetError(f"{path}: line {int(bad[0]) + 2}: {body} quaternion is not unit length (norm {norms[bad[0]]:.6f})")
     T_world_tractor = np.stack([pose_from_xyz_quat(row[1:8]) for row in values])
@@ -325,6 +348,12 @@ def read_dataset(root: str | Path, check_images: bool = False, load_measurements
         raise DatasetError(f"{root}: dataset folder not found")
     rig_path = root / RIG_FILE
     if not rig_path.is_file():
+        from ampc_vo.io.kitti import incomplete_kitti_folder
+
+        kitti_problem = incomplete_kitti_folder(root)
+        if kitti_problem:
+            raise DatasetError(f"{root}: looks like a KITTI odometry folder but has {kitti_problem} (a KITTI folder needs calib.txt, "
+                               "image_l/ and image_r/ or image_0/ and image_1/; a dataset folder needs rig.yaml)")
         raise DatasetError(f"{rig_path}: file missing (every dataset needs a rig.yaml)")
     try:
         rig = load_rig(rig_path)

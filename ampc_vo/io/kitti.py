@@ -24,9 +24,10 @@ import cv2
 import numpy as np
 
 from ampc_vo.io.frame_images import load_frame_images
+from ampc_vo.io.frame_times import check_frame_times
 from ampc_vo.errors import DatasetError
-from ampc_vo.geometry import invert_pose, make_pose
-from ampc_vo.rig import Body, Camera, Rig, camera_rotation
+from ampc_vo.geometry import ROTATION_TOLERANCE, invert_pose, make_pose, nearest_rotation
+from ampc_vo.rig import Body, Camera, Rig, camera_rotation, rig_problem
 
 if TYPE_CHECKING:  # evaluation (evo, SciPy) is not imported by the frontend's worker process
     from ampc_vo.io.groundtruth import GroundTruth
@@ -43,6 +44,8 @@ DEFAULT_FRAME_RATE_HZ = 10.0
 # from ground truth with scripts/estimate_axle_offset.py.
 KITTI_CAMERA_HEIGHT_M = 1.65
 KITTI_CAMERA_AHEAD_OF_AXLE_M = 1.08
+# a stereo baseline outside this range is no car's (KITTI: 0.54 m): a unit or sign mistake in calib.txt
+MIN_BASELINE_M, MAX_BASELINE_M = 0.02, 5.0
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,18 @@ def is_kitti_folder(path: str | Path) -> bool:
     if not (path / "calib.txt").is_file():
         return False
     return all(any((path / name).is_dir() for name in names) for names in IMAGE_FOLDERS.values())
+
+
+def incomplete_kitti_folder(path: str | Path) -> str | None:
+    """What a folder with some of the KITTI layout (``calib.txt``, an image folder) lacks to be a
+    KITTI folder, e.g. ``"no calib.txt"``, or ``None`` when it has none of it or all of it."""
+    path = Path(path)
+    has_calibration = (path / "calib.txt").is_file()
+    present = {camera: any((path / name).is_dir() for name in names) for camera, names in IMAGE_FOLDERS.items()}
+    if not has_calibration and not any(present.values()):
+        return None
+    missing = ([] if has_calibration else ["calib.txt"]) + [f"{' or '.join(IMAGE_FOLDERS[camera])}/" for camera, found in present.items() if not found]
+    return None if not missing else "no " + " and no ".join(missing)
 
 
 # ---------------------------------------------------------------------- file parsing
@@ -113,8 +128,9 @@ def read_poses(path: str | Path) -> np.ndarray:
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
     poses[:, :3, :] = rows.reshape(-1, 3, 4)
     orthogonality = np.abs(np.einsum("nji,njk->nik", poses[:, :3, :3], poses[:, :3, :3]) - np.eye(3)).max()
-    if orthogonality > 1e-3:
+    if orthogonality > ROTATION_TOLERANCE:
         raise DatasetError(f"{path}: rotation parts are not orthonormal (error {orthogonality:.2g})")
+    poses[:, :3, :3] = [nearest_rotation(rotation) for rotation in poses[:, :3, :3]]  # KITTI's rows are rounded
     return poses
 
 
@@ -158,6 +174,28 @@ def kitti_rig(calibration: dict[str, np.ndarray], width: int, height: int, optio
         position = left_position + R_body_camera @ (center - left_center)
         cameras.append(Camera(name, "tractor", "pinhole", width, height, fx, fy, cx, cy, (), make_pose(R_body_camera, position)))
     return Rig(bodies={"tractor": Body("tractor", float(options.axle_x))}, cameras=tuple(cameras))
+
+
+def check_stereo_calibration(path: Path, rig: Rig) -> None:
+    """:class:`DatasetError` for a calibration no stereo rig can have (issue 14): impossible
+    intrinsics (:func:`ampc_vo.rig.rig_problem`), a right camera that is not to the right of the left
+    one (P1's sign flipped: KITTI's ``P1[0, 3] = -fx * baseline`` is negative), a baseline outside
+    [``MIN_BASELINE_M``, ``MAX_BASELINE_M``] (a unit mistake); a pair that is not side by side
+    (rectified cameras differ along x only) is a warning."""
+    left, right = rig.camera(LEFT), rig.camera(RIGHT)
+    offset = left.R_body_camera.T @ (right.center - left.center)  # in the left camera's axes: x right
+    if offset[0] <= 0.0:
+        raise DatasetError(f"{path}: P1 puts the right camera {abs(offset[0]):.3f} m to the left of the left camera "
+                           "(sign of P1[0, 3] flipped? it is -fx * baseline, negative, in KITTI's calib.txt)")
+    if not MIN_BASELINE_M <= offset[0] <= MAX_BASELINE_M:
+        raise DatasetError(f"{path}: stereo baseline {offset[0]:.4g} m is outside [{MIN_BASELINE_M}, {MAX_BASELINE_M}] m "
+                           "(P1[0, 3] = -fx * baseline in pixels times metres: a unit mistake?)")
+    problem = rig_problem(rig)
+    if problem:
+        raise DatasetError(f"{path}: {problem}")
+    if np.hypot(offset[1], offset[2]) > 0.1 * offset[0]:
+        logger.warning("%s: the right camera is %.3f m off the left camera's x axis (rectified pairs differ along x only): stereo matching will fail",
+                       path, float(np.hypot(offset[1], offset[2])))
 
 
 # ---------------------------------------------------------------------- the dataset
@@ -273,6 +311,7 @@ def load_kitti(path: str | Path, options: KittiOptions | None = None) -> KittiDa
     if (right_height, right_width) != (height, width):
         raise DatasetError(f"{right_path}: image is {right_width}x{right_height} but {left_path} is {width}x{height} (a rectified stereo pair has one size)")
     rig = kitti_rig(calibration, width, height, options)
+    check_stereo_calibration(root / "calib.txt", rig)
 
     times_path = root / "times.txt"
     if times_path.is_file():
@@ -288,6 +327,7 @@ def load_kitti(path: str | Path, options: KittiOptions | None = None) -> KittiDa
         if not np.isfinite(timestamps[0]) or len(bad):
             line = 1 if not np.isfinite(timestamps[0]) else int(bad[0]) + 1
             raise DatasetError(f"{times_path}: line {line}: times must be finite and strictly increasing, got {timestamps[line - 1]}")
+        check_frame_times(timestamps, str(times_path), line_offset=1)
     else:
         timestamps = np.arange(frames) / options.frame_rate_hz
 

@@ -36,6 +36,7 @@ from typing import Iterator
 import numpy as np
 
 from ampc_vo.errors import DatasetError
+from ampc_vo.io.frame_times import check_frame_times
 from ampc_vo.observations import CameraObservations, FrameObservations
 from ampc_vo.rig import Rig
 
@@ -136,6 +137,67 @@ def save_measurements(measurements: Measurements, path: str | Path) -> None:
     )
 
 
+PIXEL_MARGIN = 0.1  # a measured pixel may lie this fraction of the image size outside it (noise)
+ROW_ARRAYS = ("frame", "camera_index", "track_id", "landmark_id", "is_outlier")
+INTEGER_ARRAYS = ("frame", "camera_index", "track_id", "landmark_id")
+
+
+def _check_shapes(path: Path, data: dict[str, np.ndarray]) -> None:
+    """Every array has the shape and kind of the module docstring (a 2-D ``frame``, a 0-d
+    ``camera_names``, float ids are errors that name the array, not tracebacks later)."""
+    for name in ROW_ARRAYS + ("camera_names",) + (("timestamps",) if "timestamps" in data else ()):
+        if data[name].ndim != 1:
+            raise DatasetError(f"{path}: array {name!r} must be one-dimensional, got shape {data[name].shape}")
+    rows = data["frame"].shape[0]
+    for name in ROW_ARRAYS[1:] + ("pixel",) + (("pixel_clean",) if "pixel_clean" in data else ()):
+        if data[name].shape[0] != rows:
+            raise DatasetError(f"{path}: array {name!r} has {data[name].shape[0]} rows, 'frame' has {rows}")
+    for name in ("pixel",) + (("pixel_clean",) if "pixel_clean" in data else ()):
+        if data[name].ndim != 2 or data[name].shape[1] != 2:
+            raise DatasetError(f"{path}: array {name!r} must have shape (M, 2), got {data[name].shape}")
+    if data["landmarks"].ndim != 2 or data["landmarks"].shape[1] != 3:
+        raise DatasetError(f"{path}: array 'landmarks' must have shape (L, 3), got {data['landmarks'].shape}")
+    for name in INTEGER_ARRAYS:
+        values = data[name]
+        if values.dtype.kind not in "iu" and not (values.dtype.kind in "fb" and np.all(np.isfinite(values)) and np.all(values == np.round(values))):
+            raise DatasetError(f"{path}: array {name!r} must hold integers, got {values.dtype} values")
+    for name in ("pixel", "landmarks") + (("pixel_clean",) if "pixel_clean" in data else ()) + (("timestamps",) if "timestamps" in data else ()):
+        if data[name].dtype.kind not in "iuf":
+            raise DatasetError(f"{path}: array {name!r} must hold numbers, got {data[name].dtype}")
+    if data["camera_names"].dtype.kind not in "US":
+        raise DatasetError(f"{path}: array 'camera_names' must hold strings, got {data['camera_names'].dtype}")
+
+
+def _check_unique_tracks(path: Path, frame: np.ndarray, camera_index: np.ndarray, track_id: np.ndarray, camera_names: tuple[str, ...]) -> None:
+    """A track is seen at most once per frame and camera (a repeated id would be two pixels of one
+    feature)."""
+    if len(frame) < 2:
+        return
+    keys = np.stack([frame.astype(np.int64), camera_index.astype(np.int64), track_id.astype(np.int64)], axis=1)
+    keys = keys[np.lexsort(keys.T[::-1])]
+    repeated = np.flatnonzero(np.all(keys[1:] == keys[:-1], axis=1))
+    if len(repeated):
+        f, c, t = keys[int(repeated[0])]
+        raise DatasetError(f"{path}: track_id {t} appears more than once in frame {f}, camera {camera_names[c]!r} "
+                           "(a track is seen at most once per frame and camera)")
+
+
+def _check_pixels_inside(path: Path, pixel: np.ndarray, camera_index: np.ndarray, camera_names: tuple[str, ...], rig: Rig) -> None:
+    """Every measured pixel lies in its camera's image, up to ``PIXEL_MARGIN`` of its size (pixel
+    noise at the border): pixels of another resolution, or scaled coordinates, would be unprojected
+    into wrong bearings."""
+    sizes = np.array([[rig.camera(name).width, rig.camera(name).height] for name in camera_names], dtype=float).reshape(-1, 2)
+    if not len(pixel):
+        return
+    limits = sizes[camera_index]
+    outside = np.flatnonzero(np.any((pixel < -PIXEL_MARGIN * limits) | (pixel > (1.0 + PIXEL_MARGIN) * limits), axis=1))
+    if len(outside):
+        row = int(outside[0])
+        camera = rig.camera(camera_names[camera_index[row]])
+        raise DatasetError(f"{path}: row {row}: pixel ({pixel[row, 0]:.6g}, {pixel[row, 1]:.6g}) lies outside the "
+                           f"{camera.width}x{camera.height} image of camera {camera.name!r} ({len(outside)} rows outside; measurements of another rig?)")
+
+
 def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
     """Read ``measurements.npz``; a missing, corrupt or inconsistent file raises :class:`DatasetError`.
 
@@ -145,6 +207,8 @@ def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"{path}: measurements file not found")
+    if not zipfile.is_zipfile(path):
+        raise DatasetError(f"{path}: not a readable .npz file (not a zip archive of arrays)")
     try:
         with np.load(path, allow_pickle=False) as archive:
             data = {name: archive[name] for name in archive.files}
@@ -154,17 +218,10 @@ def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
     missing = [name for name in required if name not in data]
     if missing:
         raise DatasetError(f"{path}: missing array(s) {missing}")
+    _check_shapes(path, data)
     rows = data["frame"].shape[0]
-    for name in ("camera_index", "track_id", "landmark_id", "pixel", "is_outlier") + (("pixel_clean",) if "pixel_clean" in data else ()):
-        if data[name].shape[0] != rows:
-            raise DatasetError(f"{path}: array {name!r} has {data[name].shape[0]} rows, 'frame' has {rows}")
-    for name in ("pixel",) + (("pixel_clean",) if "pixel_clean" in data else ()):
-        if data[name].ndim != 2 or data[name].shape[1] != 2:
-            raise DatasetError(f"{path}: array {name!r} must have shape (M, 2), got {data[name].shape}")
-    landmarks = data["landmarks"]
-    if landmarks.ndim != 2 or landmarks.shape[1] != 3:
-        raise DatasetError(f"{path}: array 'landmarks' must have shape (L, 3), got {landmarks.shape}")
     camera_names = tuple(str(name) for name in data["camera_names"])
+    landmarks = data["landmarks"]
     if rows and (data["camera_index"].min() < 0 or data["camera_index"].max() >= len(camera_names)):
         raise DatasetError(f"{path}: camera_index out of range for {len(camera_names)} cameras")
     if rows and (data["landmark_id"].min() < 0 or data["landmark_id"].max() >= len(landmarks)):
@@ -173,12 +230,20 @@ def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
         raise DatasetError(f"{path}: negative frame index")
     if "timestamps" in data:
         timestamps = data["timestamps"].astype(float)
+        if not np.all(np.isfinite(timestamps)):
+            raise DatasetError(f"{path}: array 'timestamps' contains NaN or infinite values (frame {int(np.flatnonzero(~np.isfinite(timestamps))[0])})")
+        if np.any(np.diff(timestamps) <= 0.0):
+            frame = int(np.flatnonzero(np.diff(timestamps) <= 0.0)[0]) + 1
+            raise DatasetError(f"{path}: array 'timestamps' not strictly increasing at frame {frame} ({timestamps[frame - 1]} then {timestamps[frame]})")
+        check_frame_times(timestamps, f"{path}: timestamps")
         if rows and data["frame"].max() >= len(timestamps):
             raise DatasetError(f"{path}: frame index {data['frame'].max()} beyond {len(timestamps)} timestamps")
     else:
         timestamps = np.arange(int(data["frame"].max()) + 1 if rows else 0, dtype=float)
-    if not np.all(np.isfinite(data["pixel"])):
-        raise DatasetError(f"{path}: array 'pixel' contains NaN or infinite values")
+    for name in ("pixel", "landmarks") + (("pixel_clean",) if "pixel_clean" in data else ()):
+        if not np.all(np.isfinite(data[name])):
+            raise DatasetError(f"{path}: array {name!r} contains NaN or infinite values")
+    _check_unique_tracks(path, data["frame"], data["camera_index"], data["track_id"], camera_names)
     camera_timestamps = data.get("camera_timestamps")
     if camera_timestamps is not None:
         if camera_timestamps.shape != (len(timestamps), len(camera_names)):
@@ -202,6 +267,7 @@ def load_measurements(path: str | Path, rig: Rig | None = None) -> Measurements:
         unknown = [name for name in camera_names if name not in rig.camera_names]
         if unknown:
             raise DatasetError(f"{path}: camera(s) {unknown} not in the rig (rig cameras: {rig.camera_names})")
+        _check_pixels_inside(path, data["pixel"], data["camera_index"], camera_names, rig)
     return Measurements(
         frame=data["frame"].astype(np.int64),
         camera_index=data["camera_index"].astype(np.int64),

@@ -4,7 +4,10 @@
   (``T_world_tractor`` / ``T_world_trailer``), with a ``#`` comment header.
 * ``hitch.csv``: ``timestamp,hitch_angle,hitch_sigma`` in radians, one header line.
 
-:class:`OutputWriter` flushes every row as it is written, so a crash keeps what was done.
+:class:`OutputWriter` flushes every row as it is written, so a crash keeps what was done; given the
+run's :class:`~ampc_vo.io.run_folder.RunFolder` it records its files there and writes the run's
+provenance line (``# ampc-vo run <id>``) under each header. A write that fails (disk full) raises
+:class:`~ampc_vo.errors.WriteError`: the rows written before stay.
 """
 from __future__ import annotations
 
@@ -17,8 +20,9 @@ from typing import IO
 
 import numpy as np
 
-from ampc_vo.errors import DatasetError, OutputError
-from ampc_vo.geometry import pose_from_xyz_quat, pose_to_xyz_quat
+from ampc_vo.errors import DatasetError, OutputError, WriteError
+from ampc_vo.geometry import ROTATION_TOLERANCE, pose_from_xyz_quat, pose_to_xyz_quat
+from ampc_vo.io.run_folder import RunFolder
 
 logger = logging.getLogger(__name__)
 
@@ -26,7 +30,6 @@ TRACTOR_FILE = "tractor.tum"
 TRAILER_FILE = "trailer.tum"
 HITCH_FILE = "hitch.csv"
 TUM_HEADER = "# timestamp x y z qx qy qz qw"
-QUATERNION_TOLERANCE = 1e-3  # |q| of a TUM row may differ from 1 by this much (rounded external files)
 HITCH_HEADER = "timestamp,hitch_angle,hitch_sigma"
 
 
@@ -71,9 +74,10 @@ class OutputWriter:
     ``with_trailer=False`` (tractor-only rigs or modes) creates only ``tractor.tum``.
     """
 
-    def __init__(self, directory: str | Path, with_trailer: bool = True) -> None:
+    def __init__(self, directory: str | Path, with_trailer: bool = True, run: RunFolder | None = None) -> None:
         self.directory = Path(directory)
         self.with_trailer = with_trailer
+        self.run = run
         self._tractor: IO[str] | None = None
         self._trailer: IO[str] | None = None
         self._hitch: IO[str] | None = None
@@ -100,15 +104,19 @@ class OutputWriter:
             raise OutputError(f"{self.directory}: cannot write the outputs there ({error.strerror or error}: {error.filename})") from None
 
     def _open(self, name: str, header: str) -> IO[str]:
-        handle = open(self.directory / name, "w", encoding="utf-8")
-        handle.write(header + "\n")
+        path = self.directory / name if self.run is None else self.run.path(name)
+        handle = open(path, "w", encoding="utf-8")
+        handle.write(header + "\n" + ("" if self.run is None else self.run.tag + "\n"))
         handle.flush()
         return handle
 
     def close(self) -> None:
         for handle in (self._tractor, self._trailer, self._hitch):
             if handle is not None and not handle.closed:
-                handle.close()
+                try:
+                    handle.close()
+                except OSError as error:  # its last flush failed (disk full): reported by write() already
+                    logger.debug("closing %s: %s", handle.name, error)
 
     def write(
         self,
@@ -132,8 +140,11 @@ class OutputWriter:
     @staticmethod
     def _append(handle: IO[str] | None, line: str) -> None:
         assert handle is not None
-        handle.write(line + "\n")
-        handle.flush()
+        try:
+            handle.write(line + "\n")
+            handle.flush()
+        except OSError as error:
+            raise WriteError(f"{handle.name}: cannot write ({error.strerror or error}); the estimates written before are kept") from None
 
 
 # ---------------------------------------------------------------------- readers
@@ -181,7 +192,7 @@ def read_tum(path: str | Path) -> Trajectory:
     """Read a TUM trajectory file (``t x y z qx qy qz qw``; ``#`` lines are comments)."""
     rows = _load_rows(Path(path), 8, None)
     norms = np.linalg.norm(rows[:, 4:8], axis=1)
-    bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_TOLERANCE)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > ROTATION_TOLERANCE)
     if len(bad):
         raise DatasetError(f"{path}: data row {int(bad[0]) + 1} (timestamp {rows[bad[0], 0]}): quaternion is not unit length (norm {norms[bad[0]]:.6f})")
     poses = np.array([pose_from_xyz_quat(row[1:]) for row in rows]).reshape(-1, 4, 4)

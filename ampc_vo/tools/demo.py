@@ -3,8 +3,9 @@
 ``scripts/run_odometry.py`` without a dataset runs on :func:`demo_dataset`: the first call
 simulates ``configs/sim/demo.yaml`` with images (about a minute on two cores) into
 ``$AMPC_VO_CACHE`` (default ``~/.cache/ampc_vo``), later calls reuse it. The folder name carries
-a hash of the route and rig files, so editing them renders anew; a folder left half-written by an
-interrupted render has no completion marker and is rendered again.
+a hash of the route and rig files, so editing them renders anew; an interrupted render (Ctrl-C,
+SIGTERM) removes its folder, and one left half-written otherwise (SIGKILL) has no completion
+marker and is rendered again.
 """
 from __future__ import annotations
 
@@ -58,7 +59,12 @@ def demo_dataset(config_path: str | Path = DEMO_CONFIG, cache: str | Path | None
     from ampc_vo.sim.simulation import simulate_dataset
 
     logger.warning("rendering the demo sequence into %s (first run only, about a minute)", folder)
-    result = simulate_dataset(config_path, folder, with_images=True, progress=progress)
+    try:
+        result = simulate_dataset(config_path, folder, with_images=True, progress=progress)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM (ampc_vo.tools.cli): no half-rendered folder is left
+        logger.warning("demo render interrupted: %s removed (it is rendered again next time)", folder)
+        shutil.rmtree(folder, ignore_errors=True)
+        raise
     if not result.images_written:
         raise ConfigError("the renderer is not available: the demo needs rendered images")
     (folder / COMPLETE_MARKER).write_text("complete\n", encoding="utf-8")

@@ -27,21 +27,19 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from evo.core import lie_algebra, metrics, sync
+from evo.core import filters, lie_algebra, metrics, sync
 from evo.core.geometry import GeometryException
 from evo.core.trajectory import PoseTrajectory3D
 
-from ampc_vo.errors import AmpcError, DatasetError
+from ampc_vo.errors import AmpcError, DatasetError, OutputError, WriteError
 from ampc_vo.geometry import wrap_angle
 from ampc_vo.io.groundtruth import GroundTruth
 from ampc_vo.io.outputs import HITCH_FILE, TRACTOR_FILE, TRAILER_FILE, HitchSeries, Trajectory, read_hitch, read_tum
+from ampc_vo.io.run_folder import METRICS_FILE, PLOT_FILE, TIMING_FILE, FolderClaim, check_run_files
 
 logger = logging.getLogger(__name__)
 
 RPE_SEGMENT_M = 10.0
-TIMING_FILE = "timing.json"
-METRICS_FILE = "metrics.json"
-PLOT_FILE = "evaluation.png"
 
 
 @dataclass(frozen=True)
@@ -153,8 +151,8 @@ def relative_pose_error_percent(truth: PoseTrajectory3D, estimate: PoseTrajector
     )
     try:
         metric.process_data((truth, estimate))
-    except metrics.MetricsException as error:
-        logger.warning("RPE not computable: %s", error)
+    except (metrics.MetricsException, filters.FilterException) as error:  # too few poses (sparse run) for the segments
+        logger.warning("RPE over %g m not computable from %d poses (too sparse for the segment length): %s", segment_m, truth.num_poses, error)
         return None
     return float(np.mean(metric.error) / segment_m * 100.0)
 
@@ -281,34 +279,60 @@ def read_seconds_per_frame(output_dir: str | Path) -> float | None:
         return None
 
 
-def check_run_dataset(output_dir: str | Path, dataset_dir: str | Path) -> bool:
-    """False, with a warning, when ``OUT/timing.json`` says the run read another dataset folder
-    than the one it is being evaluated against (a mix-up gives plausible-looking wrong metrics);
-    True when they agree or the run recorded none."""
-    recorded = _read_timing(output_dir, "dataset")
-    if not isinstance(recorded, str) or Path(recorded).resolve() == Path(dataset_dir).resolve():
-        return True
-    logger.warning("%s was computed from %s, not from %s: the metrics compare it with another sequence's ground truth",
-                   output_dir, recorded, Path(dataset_dir).resolve())
-    return False
+def require_run_dataset(output_dir: str | Path, dataset_dir: str | Path) -> None:
+    """:class:`~ampc_vo.errors.OutputError` when the run in ``output_dir`` read another dataset
+    folder than ``dataset_dir`` (``run.json``, else ``timing.json``): nothing is evaluated or written."""
+    from ampc_vo.io.run_folder import read_run
+
+    record = read_run(output_dir)
+    recorded = record.dataset if record is not None and record.dataset else _read_timing(output_dir, "dataset")
+    if isinstance(recorded, str) and Path(recorded).resolve() != Path(dataset_dir).resolve():
+        raise OutputError(f"{output_dir}: the run read {recorded}, not {Path(dataset_dir).resolve()}: "
+                          "evaluating it against another sequence's ground truth would give wrong metrics (nothing written)")
+
+
+RUN_OUTPUTS = (TRACTOR_FILE, TRAILER_FILE, HITCH_FILE, TIMING_FILE)
 
 
 def evaluate_output(output_dir: str | Path, truth: GroundTruth, seconds_per_frame: float | None = None, max_time_diff: float = 0.01) -> Evaluation:
-    """Evaluate the files of an odometry run in ``output_dir`` (DESIGN section 5)."""
+    """Evaluate the files of an odometry run in ``output_dir`` (DESIGN section 5): only files the
+    run recorded in its ``run.json`` are read (:func:`~ampc_vo.io.run_folder.check_run_files`:
+    a stale file of another run is an :class:`~ampc_vo.errors.OutputError`, as is a run still writing)."""
     output_dir = Path(output_dir)
-    if not (output_dir / TRACTOR_FILE).is_file():
+    files = check_run_files(output_dir, RUN_OUTPUTS).present
+    if TRACTOR_FILE not in files:
         raise DatasetError(f"{output_dir}: no {TRACTOR_FILE}; is this an odometry output folder?")
-    tractor = read_tum(output_dir / TRACTOR_FILE)
-    trailer = read_tum(output_dir / TRAILER_FILE) if (output_dir / TRAILER_FILE).is_file() else None
-    hitch = read_hitch(output_dir / HITCH_FILE) if (output_dir / HITCH_FILE).is_file() else None
-    if seconds_per_frame is None:
+    tractor = read_tum(files[TRACTOR_FILE])
+    trailer = read_tum(files[TRAILER_FILE]) if TRAILER_FILE in files else None
+    hitch = read_hitch(files[HITCH_FILE]) if HITCH_FILE in files else None
+    if seconds_per_frame is None and TIMING_FILE in files:
         seconds_per_frame = read_seconds_per_frame(output_dir)
     return evaluate(truth, tractor, trailer, hitch, seconds_per_frame, max_time_diff)
 
 
-def write_metrics(metrics_result: Metrics, path: str | Path) -> None:
-    """Write ``metrics.json`` (non-finite values as ``null``)."""
-    Path(path).write_text(json.dumps(metrics_result.to_dict(), indent=2) + "\n", encoding="utf-8")
+def evaluate_run_folder(output_dir: str | Path, truth: GroundTruth, seconds_per_frame: float | None = None, max_time_diff: float = 0.01,
+                        title: str = "", plot: bool = True) -> tuple[Evaluation, list[Path]]:
+    """Evaluate the run in ``output_dir`` and write ``metrics.json`` (with the run's id) and, with
+    ``plot``, ``evaluation.png`` there, holding the folder's lock meanwhile; returns the evaluation
+    and the files written."""
+    output_dir = Path(output_dir)
+    evaluation = evaluate_output(output_dir, truth, seconds_per_frame, max_time_diff)
+    with FolderClaim(output_dir) as claim:
+        written = [claim.path(METRICS_FILE)]
+        write_metrics(evaluation.metrics, written[0], run_id=claim.run_id)
+        if plot:
+            written.append(claim.path(PLOT_FILE))
+            plot_evaluation(evaluation, written[-1], title=title or str(output_dir))
+    return evaluation, written
+
+
+def write_metrics(metrics_result: Metrics, path: str | Path, run_id: str | None = None) -> None:
+    """Write ``metrics.json`` (non-finite values as ``null``; ``run_id``: the run evaluated)."""
+    data = metrics_result.to_dict() | ({} if run_id is None else {"run_id": run_id})
+    try:
+        Path(path).write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+    except OSError as error:
+        raise WriteError(f"{path}: cannot write ({error.strerror or error})") from None
 
 
 def plot_evaluation(evaluation: Evaluation, path: str | Path, title: str = "") -> None:

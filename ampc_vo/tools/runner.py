@@ -90,9 +90,13 @@ def run_sequence(sequence: Sequence, config: VoConfig, out_dir: str | Path, reru
             recorder.log_frame(estimate.frame, estimate.timestamp, T_world_tractor=estimate.T_world_tractor, T_world_trailer=estimate.T_world_trailer,
                                hitch_angle=estimate.hitch_angle, hitch_sigma=estimate.hitch_sigma)
 
+    steps = sequence.steps()
     try:
-        return run_on_frames(sequence.rig, config, timer.wrap(sequence.steps(), log_step), out_dir, len(sequence), progress,
+        return run_on_frames(sequence.rig, config, timer.wrap(steps, log_step), out_dir, len(sequence), progress,
                              wheel_odometry, on_frame=log_published, source_seconds=timer.seconds, dataset=sequence.path)
     finally:
+        close = getattr(steps, "close", None)
+        if close is not None:  # stops a frontend worker process now, not when the traceback is freed
+            close()
         if recorder is not None:
             recorder.close()

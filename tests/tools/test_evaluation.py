@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -164,22 +165,24 @@ def test_a_timing_file_with_a_non_number_is_logged_and_ignored(tmp_path, caplog)
     assert "unreadable timing file" in caplog.text
 
 
-def test_a_run_evaluated_against_another_dataset_is_flagged(tmp_path, caplog):
-    """timing.json records the dataset folder of the run; evaluate.py warns about a mix-up."""
+def test_a_run_evaluated_against_another_dataset_is_refused(tmp_path):
+    """run.json (or, for older runs, timing.json) records the dataset folder of the run; evaluating
+    it against another one is an error (issue 14: it used to be a warning, and metrics.json was
+    overwritten)."""
     import json
 
-    from ampc_vo.tools.evaluation import check_run_dataset
+    from ampc_vo.errors import OutputError
+    from ampc_vo.tools.evaluation import require_run_dataset
 
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     out = tmp_path / "out"
     out.mkdir()
-    assert check_run_dataset(out, tmp_path / "a")  # no timing.json: nothing to check
+    require_run_dataset(out, tmp_path / "a")  # no run.json, no timing.json: nothing to check
     (out / "timing.json").write_text(json.dumps({"dataset": str((tmp_path / "a").resolve())}))
-    assert check_run_dataset(out, tmp_path / "b" / ".." / "a")
-    with caplog.at_level("WARNING"):
-        assert not check_run_dataset(out, tmp_path / "b")
-    assert "was computed from" in caplog.text and str(tmp_path / "b") in caplog.text
+    require_run_dataset(out, tmp_path / "b" / ".." / "a")
+    with pytest.raises(OutputError, match=f"the run read {re.escape(str((tmp_path / 'a').resolve()))}, not {re.escape(str((tmp_path / 'b').resolve()))}"):
+        require_run_dataset(out, tmp_path / "b")
 
 
 def test_evaluate_script_rejects_nonsense_options(tmp_path):
