@@ -489,6 +489,16 @@ def test_10_all_black_or_all_white_images_exit_1_with_no_poses(tmp_path, capsys,
     assert _pose_rows(out / "tractor.tum") == 0 and read_run(out).state == "failed"
 
 
+@pytest.mark.slow
+def test_10_black_frames_mid_run_are_reported_as_predicted_not_measured(rendered, tmp_path, capsys, caplog):
+    folder = _copy_dataset(rendered, tmp_path / "black_middle")
+    for image in (folder / "images").glob("*/*.png"):
+        if 30 <= int(image.stem) < 45:
+            cv2.imwrite(str(image), np.zeros((480, 640), np.uint8))
+    assert run_odometry([str(folder), "--out", str(tmp_path / "out"), "--no-progress"]) == 0, capsys.readouterr().err
+    assert re.search(r"\d+ of \d+ keyframes had too few tracks: their motion is the constant-velocity prediction, not a measurement", caplog.text)
+
+
 def test_10_an_empty_frames_csv_is_bad_input(bearings, tmp_path, capsys):
     folder = _copy_dataset(bearings, tmp_path / "empty")
     _write_frames_csv(folder, _frames_csv(folder)[:1])
