@@ -14,6 +14,7 @@ bearing vectors in the camera frame; the two are inverse to 1e-9 over the whole 
 from __future__ import annotations
 
 import dataclasses
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,9 @@ PINHOLE_MAX_HALF_FOV_DEG = 80.0  # a pinhole (rectilinear) lens beyond ~160 degr
 MIN_HALF_FOV_DEG = 0.25  # narrower than a 0.5 degree telephoto: a focal length in the wrong unit
 MAX_ASPECT_RATIO = 2.0  # fx / fy: pixels are (nearly) square
 MAX_MOUNT_DISTANCE_M = 50.0  # a camera or an axle this far from the hitch: millimetres for metres?
+PRINCIPAL_POINT_OFFSET = 0.25  # cx, cy further than this fraction of the size from the centre: a warning
+
+logger = logging.getLogger(__name__)
 
 # Body-frame axes of a camera looking straight ahead: columns are the camera x (right = -y_body),
 # y (down = -z_body) and z (forward = +x_body) axes expressed in the body frame.
@@ -295,6 +299,18 @@ def calibration_problem(camera: Camera) -> str | None:
     return None
 
 
+def calibration_warnings(camera: Camera) -> list[str]:
+    """What is possible but suspicious about a camera's intrinsics, and what it will do: a
+    principal point far from the image centre (swapped cx / cy, or the calibration of a crop) tilts
+    every bearing of that camera."""
+    warnings = []
+    for key, value, size in (("cx", camera.cx, camera.width), ("cy", camera.cy, camera.height)):
+        if abs(value - 0.5 * (size - 1)) > PRINCIPAL_POINT_OFFSET * size:
+            warnings.append(f"{key} = {value:g} is {abs(value - 0.5 * (size - 1)):.0f} px from the image centre ({size} px): "
+                            "cx and cy swapped, or the calibration of a cropped image? every bearing of this camera is tilted by it")
+    return warnings
+
+
 def rig_problem(rig: "Rig") -> str | None:
     """The first physically impossible value of a rig (:func:`calibration_problem` of each camera,
     mounts and axles beyond ``MAX_MOUNT_DISTANCE_M``), as ``"field: problem"``, or ``None``."""
@@ -428,6 +444,9 @@ def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
     problem = rig_problem(rig)
     if problem:
         raise ConfigError(f"{source}: {problem}")
+    for index, camera in enumerate(rig.cameras):
+        for warning in calibration_warnings(camera):
+            logger.warning("%s: cameras[%d] (%s): %s", source, index, camera.name, warning)
     return rig
 
 

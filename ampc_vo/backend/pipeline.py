@@ -392,7 +392,12 @@ def run_on_frames(rig: Rig, config: VoConfig, frames: Iterable[FrameObservations
 
 
 def _require_measured(summary: RunSummary) -> None:
-    """:class:`NothingMeasuredError` for a run that published no keyframe (issue 14)."""
+    """:class:`NothingMeasuredError` for a run that published no keyframe (issue 14); a warning
+    when some keyframes had too few tracks (their motion is the constant-velocity prediction)."""
+    predicted = summary.statuses.get(MotionStatus.TOO_FEW_TRACKS.value, 0)
+    if summary.keyframes and predicted:
+        logger.warning("%d of %d keyframes had too few tracks: their motion is the constant-velocity prediction, not a measurement "
+                       "(keyframe statuses in timing.json)", predicted, summary.keyframes)
     if summary.keyframes:
         return
     if summary.frames < 2:

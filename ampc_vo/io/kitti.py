@@ -27,7 +27,7 @@ from ampc_vo.io.frame_images import load_frame_images
 from ampc_vo.io.frame_times import check_frame_times
 from ampc_vo.errors import DatasetError
 from ampc_vo.geometry import ROTATION_TOLERANCE, invert_pose, make_pose, nearest_rotation
-from ampc_vo.rig import Body, Camera, Rig, camera_rotation, rig_problem
+from ampc_vo.rig import Body, Camera, Rig, calibration_warnings, camera_rotation, rig_problem
 
 if TYPE_CHECKING:  # evaluation (evo, SciPy) is not imported by the frontend's worker process
     from ampc_vo.io.groundtruth import GroundTruth
@@ -193,6 +193,9 @@ def check_stereo_calibration(path: Path, rig: Rig) -> None:
     problem = rig_problem(rig)
     if problem:
         raise DatasetError(f"{path}: {problem}")
+    for camera in rig.cameras:
+        for warning in calibration_warnings(camera):
+            logger.warning("%s: camera %s: %s", path, camera.name, warning)
     if np.hypot(offset[1], offset[2]) > 0.1 * offset[0]:
         logger.warning("%s: the right camera is %.3f m off the left camera's x axis (rectified pairs differ along x only): stereo matching will fail",
                        path, float(np.hypot(offset[1], offset[2])))

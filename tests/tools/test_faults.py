@@ -34,6 +34,7 @@ from ampc_vo.io.outputs import OutputWriter, read_tum
 from ampc_vo.io.run_folder import LOCK_FILE, RunFolder, read_run
 from ampc_vo.rig import load_rig
 from ampc_vo.sim.simulation import simulate_dataset
+from ampc_vo.tools.processes import run_helpers, wait_gone
 
 ROOT = Path(__file__).resolve().parents[2]
 CI_ROUTE = ROOT / "configs" / "sim" / "ci_short.yaml"
@@ -254,29 +255,6 @@ def rendered(tmp_path_factory) -> Path:
     return folder
 
 
-def _children(pid: int) -> dict[int, str]:
-    """Processes whose parent is ``pid``: PID -> command line."""
-    found = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-                found[int(entry.name)] = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
-        except (OSError, ValueError, IndexError):
-            continue
-    return found
-
-
-def _running(pid: int) -> bool:
-    """The process exists and is not a zombie waiting to be reaped."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
 def _start_run(dataset: Path, out: Path) -> tuple[subprocess.Popen, int, int]:
     """The script on ``dataset`` in a process of its own; returns it with the PIDs of its frontend
     worker and its resource tracker, once poses are being written (a 1 s smoother lag: the first
@@ -288,21 +266,13 @@ def _start_run(dataset: Path, out: Path) -> tuple[subprocess.Popen, int, int]:
     deadline = time.monotonic() + 120
     worker = tracker = None
     while time.monotonic() < deadline and process.poll() is None:
-        children = _children(process.pid)
-        worker = next((pid for pid, line in children.items() if "spawn_main" in line), worker)
-        tracker = next((pid for pid, line in children.items() if "resource_tracker" in line), tracker)
+        found = run_helpers(process.pid)
+        worker, tracker = found[0] or worker, found[1] or tracker
         if worker and tracker and (out / "tractor.tum").is_file() and _pose_rows(out / "tractor.tum") >= 2:
             return process, worker, tracker
         time.sleep(0.05)
     process.kill()
     raise AssertionError(f"the run did not get going: {process.communicate()}")
-
-
-def _gone(pids: list[int], seconds: float = 10.0) -> list[int]:
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline and any(_running(pid) for pid in pids):
-        time.sleep(0.05)
-    return [pid for pid in pids if _running(pid)]
 
 
 @pytest.mark.slow
@@ -316,7 +286,7 @@ def test_4_sigterm_like_sigint_keeps_the_estimates_and_leaves_no_process(rendere
     assert process.returncode == exit_code, stderr
     rows_after = _pose_rows(out / "tractor.tum")
     assert _last_line(stderr) == f"interrupted ({signal.Signals(signal_number).name}): the {rows_after} poses written so far are in {out}"
-    assert _gone([worker, tracker]) == [], (worker, tracker)
+    assert wait_gone([worker, tracker], 10.0) == [], (worker, tracker)
     record = read_run(out)
     assert record.state == "interrupted" and not (out / LOCK_FILE).exists()
     # the window was written at the interrupt, as after Ctrl-C: more poses than when it came
@@ -330,7 +300,7 @@ def test_4_sigkill_of_the_run_leaves_no_worker_or_resource_tracker(rendered, tmp
     process, worker, tracker = _start_run(rendered, out)
     process.kill()
     process.wait(timeout=30)  # not communicate(): an orphan would hold its pipes open
-    left = _gone([worker, tracker])
+    left = wait_gone([worker, tracker], 10.0)
     for pid in left:  # do not leave them to the next test
         os.kill(pid, signal.SIGKILL)
     process.stdout.close()
@@ -359,6 +329,13 @@ def test_5_a_focal_length_of_1e_minus_9_is_refused(bearings, tmp_path, capsys):
     folder = _rig_with(_copy_dataset(bearings, tmp_path / "fx"), fx=1e-9)
     assert run_odometry([str(folder), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
     assert "cameras[0] (front): fx = 1e-09, fy = 320 px give a field of view of 180.0 degrees" in _last_line(capsys.readouterr().err)
+
+
+def test_5_a_principal_point_far_from_the_centre_is_a_warning_that_says_what_it_does(bearings, tmp_path, caplog):
+    folder = _rig_with(_copy_dataset(bearings, tmp_path / "cx"), cx=600.0)
+    load_rig(folder / RIG_FILE)
+    assert "cameras[0] (front): cx = 600 is 280 px from the image centre (640 px): cx and cy swapped" in caplog.text
+    assert "every bearing of this camera is tilted by it" in caplog.text
 
 
 @pytest.mark.parametrize("factor, message", [(-1.0, "P1 puts the right camera 0.537 m to the left of the left camera (sign of P1[0, 3] flipped?"),
@@ -510,6 +487,16 @@ def test_10_all_black_or_all_white_images_exit_1_with_no_poses(tmp_path, capsys,
     assert run_odometry([str(folder), "--out", str(out), "--no-progress"]) == 1
     assert _last_line(capsys.readouterr().err).startswith("error: no motion measured in 25 frames (nothing to track")
     assert _pose_rows(out / "tractor.tum") == 0 and read_run(out).state == "failed"
+
+
+@pytest.mark.slow
+def test_10_black_frames_mid_run_are_reported_as_predicted_not_measured(rendered, tmp_path, capsys, caplog):
+    folder = _copy_dataset(rendered, tmp_path / "black_middle")
+    for image in (folder / "images").glob("*/*.png"):
+        if 30 <= int(image.stem) < 45:
+            cv2.imwrite(str(image), np.zeros((480, 640), np.uint8))
+    assert run_odometry([str(folder), "--out", str(tmp_path / "out"), "--no-progress"]) == 0, capsys.readouterr().err
+    assert re.search(r"\d+ of \d+ keyframes had too few tracks: their motion is the constant-velocity prediction, not a measurement", caplog.text)
 
 
 def test_10_an_empty_frames_csv_is_bad_input(bearings, tmp_path, capsys):
