@@ -239,6 +239,7 @@ class ArticulatedSmoother:
         self._rng = np.random.default_rng(config.ransac.seed)
         self._last_state: dict[str, str] = {}
         self._marginals: gtsam.Marginals | None = None
+        self._last_sigma: float | None = None  # the last hitch sigma the marginals gave (_sigma_of)
 
     # ------------------------------------------------------------------ public
     @property
@@ -703,13 +704,22 @@ class ArticulatedSmoother:
             return None
 
     def _sigma_of(self, index: int) -> float | None:
-        """1-sigma of θ at keyframe ``index`` from the last marginals."""
-        if self._marginals is None:
+        """1-sigma of θ at keyframe ``index`` from the last marginals; where they cannot give one
+        (a singular window, a key the Bayes tree lacks) the last sigma they gave, or the hitch
+        prior's before any: never no sigma, never a smaller one than was known (issue 16).
+        ``None`` only without a joint hitch or with marginals disabled."""
+        if not self.joint or not self.config.smoother.marginals:
             return None
-        try:
-            return float(np.sqrt(self._marginals.marginalCovariance(A(index))[0, 0]))
-        except (RuntimeError, IndexError):  # IndexError: a key the marginals' Bayes tree does not have
-            return None
+        sigma = None
+        if self._marginals is not None:
+            try:
+                sigma = float(np.sqrt(self._marginals.marginalCovariance(A(index))[0, 0]))
+            except (RuntimeError, IndexError):  # IndexError: a key the marginals' Bayes tree does not have
+                sigma = None
+        if sigma is None or not np.isfinite(sigma):
+            return self._last_sigma if self._last_sigma is not None else float(np.radians(self.config.smoother.hitch_prior_sigma_deg))
+        self._last_sigma = sigma
+        return sigma
 
     def _separate_hitch_angle(self, keyframe: _Keyframe) -> float:
         """θ from the two separately estimated trajectories (module docstring)."""
