@@ -165,7 +165,9 @@ class OdometryPipeline:
         predicted_trailer = self._predicted(elapsed, self._trailer_velocity) if self._trailer_velocity is not None else None
         init = self.initializer.keyframe(self._last_keyframe, frame, tractor, self._hitch, predicted_trailer)
         if self.config.scale.wheel_speed and self.wheel_odometry is not None:
-            init = dataclasses.replace(init, wheel_chord=float(self.wheel_odometry(self._last_keyframe.timestamp, frame.timestamp)))
+            chord = self.wheel_odometry(self._last_keyframe.timestamp, frame.timestamp)  # None: no measurement then
+            if chord is not None:
+                init = dataclasses.replace(init, wheel_chord=float(chord))
         self._statuses[init.tractor_status.value] = self._statuses.get(init.tractor_status.value, 0) + 1
         if self.smoother.keyframe_count == 0:
             self.smoother.add_keyframe(self._last_keyframe, _first_init())

@@ -387,5 +387,8 @@ def simulate_dataset(config: SimulationConfig | str | Path, out_dir: str | Path,
             images_written = True
     write_dataset(out_dir, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory,
                   measurements=result.measurements, with_images=images_written)
+    from ampc_vo.sim.wheel_odometry import write_simulated_wheel_speed  # issue 15: wheel_speed.csv
+
+    write_simulated_wheel_speed(out_dir, result.trajectory, result.config.seed)
     LOGGER.info("dataset written to %s in %.1f s", out_dir, time.perf_counter() - started)
     return SimulationResult(result.config, result.rig, result.trajectory, result.scene, result.landmarks, result.measurements, images_written)
