@@ -220,6 +220,8 @@ def open_sequence(path: str | Path, config: VoConfig, start: int = 0, stop: int 
     if is_log(path):
         sequence = _open_log(Path(path), config, start, stop, rig, progress)
     else:
+        if rig is not None:
+            logger.warning("%s: --rig is for recordings; a folder runs with its own rig.yaml (the rig given is ignored)", path)
         sequence = _open_folder(path, config, start, stop)
     wheel_speed = load_wheel_speed(config.scale.wheel_speed_source, path)
     if wheel_speed is not None:

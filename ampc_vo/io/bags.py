@@ -8,7 +8,8 @@ topic of its images (rig.yaml camera key ``topic``) carrying ``sensor_msgs/Image
 bgr8, rgb8, bgra8, rgba8) or ``sensor_msgs/CompressedImage`` (JPEG, PNG); each image's header stamp
 is its capture time (DESIGN section 5: the cameras need not be synchronised).
 
-Frames (:func:`group_frames`): the camera with the most images is the reference; its stamps (with
+Frames (:func:`group_frames`): the camera with the most images (among those at the slowest rate)
+is the reference; its stamps (with
 gaps of dropped images filled at its median period) are the frame timestamps. Every other camera's
 phase offset to it (the median of its stamps' offsets to the nearest reference stamp, in
 (-P/2, P/2]) is removed and each image goes to the frame nearest in time; each camera keeps its own
@@ -200,8 +201,12 @@ def group_frames(stamps: dict[str, np.ndarray], where: str = "log") -> FrameGrou
     empty = [name for name in names if len(stamps[name]) == 0]
     if empty:
         raise DatasetError(f"{where}: no images from camera(s) {empty}")
-    reference = max(names, key=lambda name: (len(stamps[name]), -names.index(name)))
-    period = _period(stamps[reference])
+    # the reference: among the cameras at the slowest rate (a faster camera would leave the others
+    # without an image in every other frame), the one with the most images
+    periods = {name: _period(stamps[name]) for name in names}
+    slowest = [name for name in names if periods[name] >= 0.8 * max(periods.values())]
+    reference = max(slowest, key=lambda name: (len(stamps[name]), -names.index(name)))
+    period = periods[reference]
     timestamps = _filled_reference(stamps[reference], period)
     indices, offsets = {}, {}
     for name in names:

@@ -164,3 +164,12 @@ def test_a_recording_pickles_without_its_reader_and_reads_on(folder, tmp_path):
     recording.load_image(0, "front")
     copy = pickle.loads(pickle.dumps(recording))
     np.testing.assert_array_equal(copy.load_image(1, "rear"), folder.load_image(1, "rear"))
+
+
+def test_a_faster_camera_does_not_become_the_reference():
+    # one camera at 20 Hz, two at 10 Hz: frames at 10 Hz, the fast camera's image nearest each frame
+    slow = np.arange(10) * 0.1
+    grouping = group_frames({"fast": np.arange(20) * 0.05 + 0.01, "a": slow, "b": slow + 0.02})
+    assert grouping.reference == "a"
+    np.testing.assert_array_equal(grouping.indices["fast"], np.arange(0, 20, 2))
+    np.testing.assert_array_equal(grouping.indices["b"], np.arange(10))
