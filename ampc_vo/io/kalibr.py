@@ -5,7 +5,9 @@ Kalibr's camchain (github.com/ethz-asl/kalibr, wiki "Yaml formats"): per camera 
 ``camera_model`` (``pinhole``), ``distortion_model`` (``radtan``: OpenCV's k1 k2 p1 p2;
 ``equidistant``: OpenCV fisheye k1..k4, our ``fisheye`` model), ``distortion_coeffs``,
 ``intrinsics`` ``[fu, fv, pu, pv]``, ``resolution`` ``[width, height]``, ``rostopic``, and for every
-camera after the first ``T_cn_cnm1``: the 4x4 transform taking points from camera N-1 to camera N.
+camera after the first ``T_cn_cnm1``: the 4x4 transform taking points from camera N-1 to camera N
+(camchain-imucam files also give ``T_cam_imu``; where ``T_cn_cnm1`` is missing the chain is
+``T_cN_imu T_cN-1_imu^-1``; OpenVINS' copies give ``T_imu_cam`` and an OpenCV ``%YAML:1.0`` header).
 Other models (omni, ds, eucm, fov, ...) are a :class:`ConfigError`.
 
 The layout (YAML; DESIGN section 1 frames)::
@@ -48,7 +50,10 @@ def _load_yaml(path: Path, what: str) -> Any:
     if not path.is_file():
         raise ConfigError(f"{path}: {what} not found")
     try:
-        return yaml.safe_load(path.read_text())
+        text = path.read_text()
+        if text.lstrip().startswith("%YAML:"):  # OpenCV's YAML 1.0 header (camchains copied into OpenVINS, ...)
+            text = text.lstrip().split("\n", 1)[1] if "\n" in text.lstrip() else ""
+        return yaml.safe_load(text)
     except (yaml.YAMLError, UnicodeDecodeError) as error:
         raise ConfigError(f"{path}: not valid YAML: {error}") from None
 
@@ -90,7 +95,7 @@ def camchain_cameras(raw: Any, source: str) -> list[tuple[str, dict]]:
         for key in ("camera_model", "intrinsics", "distortion_model", "distortion_coeffs", "resolution"):
             if key not in spec:
                 raise ConfigError(f"{source}: {name}.{key}: missing")
-        if index > 0 and "T_cn_cnm1" not in spec:
+        if index > 0 and not any(key in spec for key in ("T_cn_cnm1", "T_cam_imu", "T_imu_cam")):
             raise ConfigError(f"{source}: {name}.T_cn_cnm1: missing (the transform from {names[index - 1]} to {name})")
     return [(str(name), raw[name]) for name in names]
 
@@ -108,11 +113,30 @@ def _intrinsics(name: str, spec: dict, source: str) -> dict:
     return {"model": rig_model, "width": int(width), "height": int(height), "fx": fu, "fy": fv, "cx": pu, "cy": pv, "distortion": distortion}
 
 
+def _T_cam_imu(name: str, spec: dict, source: str) -> np.ndarray | None:
+    """A camera's ``T_cam_imu`` (Kalibr camchain-imucam), or the inverse of ``T_imu_cam`` (OpenVINS'
+    copy of it), or ``None``."""
+    if "T_cam_imu" in spec:
+        return _matrix(spec["T_cam_imu"], f"{name}.T_cam_imu", source)
+    if "T_imu_cam" in spec:
+        return invert_pose(_matrix(spec["T_imu_cam"], f"{name}.T_imu_cam", source))
+    return None
+
+
 def chain_poses(cameras: list[tuple[str, dict]], source: str) -> list[np.ndarray]:
-    """``T_cam0_camN`` of every camera from the chain (``T_cN_cN-1``)."""
+    """``T_cam0_camN`` of every camera from the chain ``T_cN_cN-1``; a camera without it (an
+    imucam file converted by other tools) takes ``T_cN_imu T_cN-1_imu^-1`` from both cameras'
+    ``T_cam_imu`` (Kalibr's definition of the chain)."""
     T_cam_cam0 = [np.eye(4)]
-    for name, spec in cameras[1:]:
-        T_cam_cam0.append(_matrix(spec["T_cn_cnm1"], f"{name}.T_cn_cnm1", source) @ T_cam_cam0[-1])
+    for (previous_name, previous), (name, spec) in zip(cameras[:-1], cameras[1:]):
+        if "T_cn_cnm1" in spec:
+            T_cn_cnm1 = _matrix(spec["T_cn_cnm1"], f"{name}.T_cn_cnm1", source)
+        else:
+            T_previous_imu, T_imu = _T_cam_imu(previous_name, previous, source), _T_cam_imu(name, spec, source)
+            if T_previous_imu is None or T_imu is None:
+                raise ConfigError(f"{source}: {name}.T_cn_cnm1: missing, and {previous_name} or {name} has no T_cam_imu to derive it from")
+            T_cn_cnm1 = T_imu @ invert_pose(T_previous_imu)
+        T_cam_cam0.append(T_cn_cnm1 @ T_cam_cam0[-1])
     return [invert_pose(T) for T in T_cam_cam0]
 
 

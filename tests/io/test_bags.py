@@ -173,3 +173,15 @@ def test_a_faster_camera_does_not_become_the_reference():
     assert grouping.reference == "a"
     np.testing.assert_array_equal(grouping.indices["fast"], np.arange(0, 20, 2))
     np.testing.assert_array_equal(grouping.indices["b"], np.arange(10))
+
+
+def test_images_out_of_stamp_order_are_sorted_and_repeats_dropped(caplog):
+    from ampc_vo.io.bags import _sorted_unique
+
+    stamps = np.array([0.0, 0.2, 0.1, 0.3, 0.3, 0.4])
+    logtimes = np.arange(6) * 10
+    with caplog.at_level(logging.WARNING):
+        sorted_stamps, sorted_logtimes = _sorted_unique(stamps, logtimes, "front", "log")
+    np.testing.assert_array_equal(sorted_stamps, [0.0, 0.1, 0.2, 0.3, 0.4])
+    np.testing.assert_array_equal(sorted_logtimes, [0, 20, 10, 30, 50])  # each image keeps its own log time
+    assert "1 image(s) out of order in the log" in caplog.text and "1 image(s) with a repeated header stamp dropped" in caplog.text

@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from ampc_vo.errors import ConfigError
-from ampc_vo.geometry import invert_pose, make_pose, rot_x, rot_y, rot_z
+from ampc_vo.geometry import invert_pose, make_pose, rot_x, rot_z
 from ampc_vo.io.kalibr import kalibr_from_rig, load_rig_from_kalibr, rig_from_kalibr
 from ampc_vo.rig import load_rig
 
@@ -161,3 +161,24 @@ def test_the_script_writes_a_rig_yaml(tmp_path):
     failed = subprocess.run([sys.executable, str(ROOT / "scripts" / "rig_from_kalibr.py"), str(tmp_path / "bad.yaml"), "--layout",
                              str(tmp_path / "layout.yaml"), "--out", str(tmp_path / "x.yaml")], capture_output=True, text=True)
     assert failed.returncode == 2 and "bad.yaml: cam0.intrinsics: missing" in failed.stderr
+
+
+def test_an_imucam_chain_without_t_cn_cnm1_and_an_opencv_header(tmp_path):
+    # Kalibr's camchain-imucam gives each camera's T_cam_imu; OpenVINS' copies keep T_imu_cam only,
+    # under OpenCV's %YAML:1.0 header: the chain follows as T_cn_imu T_cnm1_imu^-1
+    chain = _chain()
+    T_imu_cam0 = make_pose(rot_z(0.3) @ rot_x(0.1), np.array([0.2, -0.1, 0.05]))  # any IMU mount
+    T_cam_imu = [invert_pose(T_imu_cam0)]
+    for n in (1, 2):
+        T_cam_imu.append(np.array(chain[f"cam{n}"]["T_cn_cnm1"]) @ T_cam_imu[-1])
+    imucam = {key: {k: v for k, v in spec.items() if k != "T_cn_cnm1"} for key, spec in chain.items()}
+    for n, T in enumerate(T_cam_imu):
+        imucam[f"cam{n}"]["T_imu_cam"] = invert_pose(T).tolist()
+    (tmp_path / "imucam.yaml").write_text("%YAML:1.0\n\n" + yaml.safe_dump(imucam))
+    (tmp_path / "layout.yaml").write_text(yaml.safe_dump(LAYOUT))
+    rig = load_rig_from_kalibr(tmp_path / "imucam.yaml", tmp_path / "layout.yaml")
+    for a, b in zip(rig.cameras, rig_from_kalibr(chain, LAYOUT).cameras):
+        np.testing.assert_allclose(a.T_body_camera, b.T_body_camera, atol=1e-9)
+    del imucam["cam1"]["T_imu_cam"]
+    with pytest.raises(ConfigError, match="cam1.T_cn_cnm1: missing"):
+        rig_from_kalibr(imucam, LAYOUT)
