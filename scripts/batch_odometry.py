@@ -6,7 +6,8 @@
 
 Each LOG (a ROS 1 .bag, a ROS 2 bag folder, an .mcap file, or one of our dataset folders) runs into
 OUT/<log name>/; OUT/summary.csv has one row per log (log, frames, distance, frames/s, status and,
-with ground truth, the tractor and trailer ATE and the hitch RMSE). Local worker processes by
+with ground truth, the tractor and trailer ATE and the hitch RMSE: --groundtruth-topic in each log,
+or <log name>.tum beside it, and <log name>.hitch.csv beside it for the hitch). Local worker processes by
 default (--workers, default 1); --ray sends the logs to a Ray cluster (ADDRESS, e.g. ray://head:10001
 or auto; without ADDRESS a local cluster of --workers CPUs). A failing log is reported and does not
 stop the batch; a rerun skips the logs already done.

@@ -1,6 +1,7 @@
 """A fleet of logs (issue 15): the odometry on many recordings (or dataset folders), each into
 ``OUT/<log name>/``, with ``OUT/summary.csv`` (one row per log: frames, distance, frames/s, status,
-and the metrics where ground truth exists).
+and the metrics where ground truth exists: a pose topic of each log or a ``<log name>.tum`` beside
+it, with ``<log name>.hitch.csv`` beside it for the hitch angle; a dataset folder's own ground truth).
 
 Each log is one :class:`BatchJob`, run by :func:`run_job` in a worker: local worker processes by
 default (``concurrent.futures`` with spawned processes), or the tasks of a Ray cluster
@@ -44,6 +45,7 @@ class BatchJob:
     config: str | None = None
     groundtruth_topic: str | None = None
     hitch_csv: str | None = None
+    groundtruth_tum: str | None = None
 
     @property
     def name(self) -> str:
@@ -55,13 +57,14 @@ class BatchJob:
 def _truth(job: BatchJob, sequence: object, out: Path):
     """The ground truth of a job: the pose topic (resampled at the estimate's times), else that of a
     dataset folder (``Sequence.truth``), else ``None``."""
-    if job.groundtruth_topic is None:
+    if job.groundtruth_topic is None and job.groundtruth_tum is None:
         return sequence.truth
     from ampc_vo.io.groundtruth_log import load_log_groundtruth, truth_at
     from ampc_vo.io.outputs import TRACTOR_FILE, read_tum
 
     axle_x = sequence.rig.axle_x("trailer") if sequence.rig.has_trailer else 0.0
-    truth = load_log_groundtruth(job.log, job.groundtruth_topic, job.hitch_csv, axle_x)
+    source = job.log if job.groundtruth_topic is not None else job.groundtruth_tum
+    truth = load_log_groundtruth(source, job.groundtruth_topic, job.hitch_csv, axle_x)
     return truth_at(truth, read_tum(out / TRACTOR_FILE).timestamps)
 
 
@@ -111,9 +114,19 @@ def finished_row(job: BatchJob) -> dict | None:
     return row if isinstance(row, dict) and row.get("status") == OK else None
 
 
+def sidecar(log: str | Path, suffix: str) -> Path | None:
+    """``<log name><suffix>`` beside the log (``drive_03.bag`` -> ``drive_03.hitch.csv``), if it exists."""
+    from ampc_vo.io.bags import log_name
+
+    path = Path(log).parent / f"{log_name(log)}{suffix}"
+    return path if path.is_file() else None
+
+
 def make_jobs(logs: Iterable[str | Path], out: str | Path, rig: str | Path | None = None, config: str | Path | None = None,
-              groundtruth_topic: str | None = None, hitch_csv: str | Path | None = None) -> list[BatchJob]:
-    """One job per log into ``out/<log name>``; two logs of one name are a :class:`ConfigError`."""
+              groundtruth_topic: str | None = None) -> list[BatchJob]:
+    """One job per log into ``out/<log name>``; two logs of one name are a :class:`ConfigError`.
+    Ground truth: ``groundtruth_topic`` in each log or a TUM file ``<log name>.tum`` beside it, and
+    the hitch angle from ``<log name>.hitch.csv`` beside it when there is one."""
     from ampc_vo.errors import ConfigError
     from ampc_vo.io.bags import log_name
 
@@ -124,9 +137,10 @@ def make_jobs(logs: Iterable[str | Path], out: str | Path, rig: str | Path | Non
         if name in names:
             raise ConfigError(f"logs {names[name]} and {log} have the same name {name!r}: their outputs would collide in {out / name}")
         names[name] = log
+        hitch_csv, tum = sidecar(log, ".hitch.csv"), sidecar(log, ".tum")
         jobs.append(BatchJob(str(Path(log).resolve()), str((out / name).resolve()), None if rig is None else str(Path(rig).resolve()),
                              None if config is None else str(Path(config).resolve()), groundtruth_topic,
-                             None if hitch_csv is None else str(Path(hitch_csv).resolve())))
+                             None if hitch_csv is None else str(hitch_csv.resolve()), None if tum is None else str(tum.resolve())))
     return jobs
 
 

@@ -67,6 +67,8 @@ def fleet(unsynchronised, tmp_path_factory) -> list[Path]:
             write_recording(dataset, root / "drive_c", "ros2-sqlite3", content)]
     corrupt = root / "drive_d.bag"
     corrupt.write_bytes(logs[1].read_bytes()[:5000])
+    truth = dataset.groundtruth  # drive_b's hitch-angle ground truth beside it
+    (root / "drive_b.hitch.csv").write_text("timestamp,hitch_angle\n" + "".join(f"{float(t)!r},{float(a)!r}\n" for t, a in zip(truth.timestamps, truth.hitch_angle)))
     return logs + [corrupt]
 
 
@@ -93,7 +95,9 @@ def test_a_batch_locally_and_on_ray_gives_the_same_summary_and_reports_the_corru
             if column != "frames_per_second":  # wall time
                 assert row_local[column] == row_ray[column], (row_local["log"], column)
     for row in rows["local"][:3]:
-        assert row["status"] == "ok" and int(row["frames"]) == 25 and float(row["tractor_ate_m"]) < 0.5 and row["hitch_rmse_deg"] == ""
+        assert row["status"] == "ok" and int(row["frames"]) == 25 and float(row["tractor_ate_m"]) < 0.5
+    assert [row["hitch_rmse_deg"] != "" for row in rows["local"]] == [False, True, False, False]  # drive_b.hitch.csv
+    assert float(rows["local"][1]["hitch_rmse_deg"]) < 1.0 and float(rows["local"][1]["trailer_ate_m"]) < 0.5
     # the same images in three formats, two cameras JPEG-compressed in each: the same estimate
     assert rows["local"][0]["tractor_ate_m"] == rows["local"][1]["tractor_ate_m"] == rows["local"][2]["tractor_ate_m"]
     # a rerun skips the logs already done and retries the failed one
