@@ -34,7 +34,8 @@ def render_unsynchronised(sim_config: str | Path, out_dir: str | Path, offsets: 
                           progress: bool = False) -> Path:
     """A dataset folder of ``sim_config`` whose camera ``c`` captures at frame time + ``offsets[c]``
     (s; cameras not named: 0), over the first ``frames`` frames (default: all). Rendered in this
-    process (tests and experiments on short routes)."""
+    process (tests and experiments on short routes), with sensor noise and exposure changes but
+    without motion blur and the moving vehicle."""
     from ampc_vo.io.folder import write_dataset
     from ampc_vo.io.groundtruth import Trajectory
     from ampc_vo.sim.render import Renderer, apply_sensor_effects, interpolate_pose, render_options_from_dict
@@ -50,6 +51,9 @@ def render_unsynchronised(sim_config: str | Path, out_dir: str | Path, offsets: 
                             None if full.arc_length is None else full.arc_length[:count])
     rig = with_topics(result.rig)
     options = render_options_from_dict(result.config.render, f"{result.config.source}: render")
+    if options.motion_blur_samples > 1 or options.moving_vehicle:
+        logger.warning("%s: motion blur and the moving vehicle are not rendered here (ampc_vo.sim.render.render_sequence renders them, "
+                       "with synchronised cameras)", sim_config)
     renderer = Renderer(result.scene, None, options)
     out_dir = Path(out_dir)
     capture = {camera.name: trajectory.timestamps + float(offsets.get(camera.name, 0.0)) for camera in rig.cameras}

@@ -185,3 +185,19 @@ def test_images_out_of_stamp_order_are_sorted_and_repeats_dropped(caplog):
     np.testing.assert_array_equal(sorted_stamps, [0.0, 0.1, 0.2, 0.3, 0.4])
     np.testing.assert_array_equal(sorted_logtimes, [0, 20, 10, 30, 50])  # each image keeps its own log time
     assert "1 image(s) out of order in the log" in caplog.text and "1 image(s) with a repeated header stamp dropped" in caplog.text
+
+
+def test_the_export_script_writes_a_log_and_its_rig(tiny_dataset, tmp_path):
+    import importlib.util
+
+    from ampc_vo.rig import load_rig
+
+    spec = importlib.util.spec_from_file_location("dataset_to_log", Path(__file__).resolve().parents[2] / "scripts" / "dataset_to_log.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.main([str(tiny_dataset), "--out", str(tmp_path / "drive.mcap"), "--format", "mcap", "--compressed", "--pose-topic", "/truth"]) == 0
+    rig = load_rig(tmp_path / "drive.mcap.rig.yaml")
+    assert [camera.topic for camera in rig.cameras] == [f"/camera/{name}/image" for name in rig.camera_names]
+    recording = read_recording(tmp_path / "drive.mcap", rig)
+    assert len(recording) == 5 and recording.load_image(4, "rear").shape == (480, 640)
+    assert script.main([str(tiny_dataset), "--out", str(tmp_path / "drive.mcap")]) == 2  # never overwritten
