@@ -10,7 +10,8 @@ is its capture time (DESIGN section 5: the cameras need not be synchronised).
 
 Frames (:func:`group_frames`): the camera with the most images (among those at the slowest rate)
 is the reference; its stamps (with
-gaps of dropped images filled at its median period) are the frame timestamps. Every other camera's
+gaps of dropped images filled at its median period, and extended at that period where other
+cameras have images before its first or after its last) are the frame timestamps. Every other camera's
 phase offset to it (the median of its stamps' offsets to the nearest reference stamp, in
 (-P/2, P/2]) is removed and each image goes to the frame nearest in time; each camera keeps its own
 stamp in ``camera_timestamps`` (a frame that has no image of a camera gets the reference time plus
@@ -193,6 +194,24 @@ def _assign(times: np.ndarray, timestamps: np.ndarray, offset: float, period: fl
     return index
 
 
+def _phase_offset(times: np.ndarray, timestamps: np.ndarray, period: float, name: str, reference: str, where: str) -> float:
+    """A camera's capture offset to the reference camera's frame times: the median offset of its
+    stamps to the nearest frame time, in (-P/2, P/2]; near P/2 the sign that puts more images into
+    frames. :class:`DatasetError` when its stamps do not overlap the frames at all (another clock)."""
+    if times[-1] < timestamps[0] - period or times[0] > timestamps[-1] + period:
+        raise DatasetError(f"{where}: camera {name!r}: its stamps [{times[0]:.3f}, {times[-1]:.3f}] s do not overlap the reference camera "
+                           f"{reference!r}'s [{timestamps[0]:.3f}, {timestamps[-1]:.3f}] s (another clock?)")
+    nearest = timestamps[np.clip(np.searchsorted(timestamps, times), 1, len(timestamps) - 1) - 1]
+    following = timestamps[np.clip(np.searchsorted(timestamps, times), 0, len(timestamps) - 1)]
+    difference = np.where(np.abs(times - nearest) < np.abs(times - following), times - nearest, times - following)
+    offset = float(np.median(difference))
+    if abs(_period(times) - period) > 0.2 * period:
+        LOGGER.warning("%s: camera %r runs at %.1f Hz, the reference camera %r at %.1f Hz: only its image nearest to each frame is used",
+                       where, name, 1.0 / _period(times), reference, 1.0 / period)
+    candidates = [offset] + ([offset - period] if offset > 0.4 * period else []) + ([offset + period] if offset < -0.4 * period else [])
+    return max(candidates, key=lambda candidate: (int(np.count_nonzero(_assign(times, timestamps, candidate, period) >= 0)), candidate >= 0))
+
+
 def group_frames(stamps: dict[str, np.ndarray], where: str = "log") -> FrameGrouping:
     """Group the sorted, strictly increasing capture times of each camera into frames (module
     docstring). ``stamps``: camera name -> (N_c,) seconds, in rig order (ties of the reference
@@ -208,30 +227,22 @@ def group_frames(stamps: dict[str, np.ndarray], where: str = "log") -> FrameGrou
     reference = max(slowest, key=lambda name: (len(stamps[name]), -names.index(name)))
     period = periods[reference]
     timestamps = _filled_reference(stamps[reference], period)
-    indices, offsets = {}, {}
+    offsets = {name: 0.0 if name == reference else _phase_offset(stamps[name], timestamps, period, name, reference, where) for name in names}
+    # frames beyond the reference's span where other cameras at its rate have images (a reference
+    # camera that starts late or stops early), at its period
+    same_rate = [name for name in names if abs(periods[name] - period) <= 0.2 * period]
+    first = min(stamps[name][0] - offsets[name] for name in same_rate)
+    last = max(stamps[name][-1] - offsets[name] for name in same_rate)
+    before, after = int(np.floor((timestamps[0] - first) / period + 0.5)), int(np.floor((last - timestamps[-1]) / period + 0.5))
+    timestamps = np.concatenate([timestamps[0] - period * np.arange(before, 0, -1), timestamps, timestamps[-1] + period * np.arange(1, after + 1)])
+    indices = {}
     for name in names:
         times = stamps[name]
-        if name == reference:
-            offset = 0.0
-        else:
-            if times[-1] < timestamps[0] - period or times[0] > timestamps[-1] + period:
-                raise DatasetError(f"{where}: camera {name!r}: its stamps [{times[0]:.3f}, {times[-1]:.3f}] s do not overlap the reference camera "
-                                   f"{reference!r}'s [{timestamps[0]:.3f}, {timestamps[-1]:.3f}] s (another clock?)")
-            nearest = timestamps[np.clip(np.searchsorted(timestamps, times), 1, len(timestamps) - 1) - 1]
-            following = timestamps[np.clip(np.searchsorted(timestamps, times), 0, len(timestamps) - 1)]
-            difference = np.where(np.abs(times - nearest) < np.abs(times - following), times - nearest, times - following)
-            offset = float(np.median(difference))
-            if abs(_period(times) - period) > 0.2 * period:
-                LOGGER.warning("%s: camera %r runs at %.1f Hz, the reference camera %r at %.1f Hz: only its image nearest to each frame is used",
-                               where, name, 1.0 / _period(times), reference, 1.0 / period)
-            # near half a period the phase is ambiguous: take the offset that puts more images into frames
-            candidates = [offset] + ([offset - period] if offset > 0.4 * period else []) + ([offset + period] if offset < -0.4 * period else [])
-            offset = max(candidates, key=lambda candidate: (int(np.count_nonzero(_assign(times, timestamps, candidate, period) >= 0)), candidate >= 0))
-        index = _assign(times, timestamps, offset, period)
+        index = _assign(times, timestamps, offsets[name], period)
         unused = len(times) - int(np.count_nonzero(index >= 0))
         if unused:
             LOGGER.info("%s: camera %r: %d of its %d images fall in no frame (extra images or far from the frame times)", where, name, unused, len(times))
-        indices[name], offsets[name] = index, offset
+        indices[name] = index
     return FrameGrouping(timestamps, indices, offsets, reference)
 
 

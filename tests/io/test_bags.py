@@ -201,3 +201,16 @@ def test_the_export_script_writes_a_log_and_its_rig(tiny_dataset, tmp_path):
     recording = read_recording(tmp_path / "drive.mcap", rig)
     assert len(recording) == 5 and recording.load_image(4, "rear").shape == (480, 640)
     assert script.main([str(tiny_dataset), "--out", str(tmp_path / "drive.mcap")]) == 2  # never overwritten
+
+
+def test_frames_extend_where_the_reference_camera_has_not_started_or_has_stopped():
+    # a and b have 10 images each (a is the reference): a covers frames 0-9, b frames 3-12 (30 ms
+    # later in each): frames 10-12 exist for b, and the reference is missing there
+    period = 0.1
+    a = np.arange(10) * period
+    b = (np.arange(10) + 3) * period + 0.03
+    grouping = group_frames({"a": a, "b": b})
+    assert grouping.reference == "a"
+    np.testing.assert_allclose(grouping.timestamps, np.arange(13) * period, atol=1e-9)
+    np.testing.assert_array_equal(grouping.indices["a"], list(range(10)) + [-1, -1, -1])
+    np.testing.assert_array_equal(grouping.indices["b"], [-1, -1, -1] + list(range(10)))
