@@ -238,7 +238,8 @@ class SmootherConfig:
 @dataclass(frozen=True)
 class ScaleConfig:
     """Aids for metric scale (DESIGN 2.3): a smooth-speed prior between consecutive keyframes
-    (``null`` disables it) and the optional wheel-speed factor (off by default).
+    (``null`` disables it) and the optional wheel-speed factor (off by default; ``wheel_speed_source``:
+    a log topic or CSV of the rear-axle speed, ``ampc_vo.io.wheel_speed``).
 
     ``ground_plane``: measure the tractor axle chord from road points seen by the tractor cameras
     and their known height above the road (``ampc_vo.scale.ground``; needs the cameras' pitch
@@ -254,6 +255,9 @@ class ScaleConfig:
     smooth_speed_sigma_mps2: float | None = 1.0
     wheel_speed: bool = False
     wheel_speed_sigma_m: float = 0.05
+    # where the wheel speed comes from (issue 15): a topic of the log (TwistStamped, Odometry) or a
+    # CSV file ``timestamp,speed``; None: the dataset folder's wheel_speed.csv when there is one
+    wheel_speed_source: str | None = None
     ground_plane: bool = True
     ground_height_sigma_m: float = 0.02
     ground_normal_sigma_deg: float = 0.0

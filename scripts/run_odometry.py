@@ -2,11 +2,14 @@
 """Run the odometry on a dataset (issues 5 and 7, DESIGN sections 4, 5).
 
     python scripts/run_odometry.py [DATASET] --out OUT [--config CONFIG] [--mode MODE] [--rerun FILE.rrd]
-                                   [--start FRAME] [--stop FRAME]
+                                   [--start FRAME] [--stop FRAME] [--rig RIG.yaml] [--wheel-speed [SOURCE]]
 
 DATASET is one of: our dataset folder with images (image frontend), our dataset folder with
 measurements.npz only (simulated bearings), or a KITTI odometry folder (recognised by calib.txt and
-its left/right image folders; stereo pair as cross-camera correspondences). Without DATASET the
+its left/right image folders; stereo pair as cross-camera correspondences), or a recording: a ROS 1
+.bag, a ROS 2 bag folder or an .mcap file, with --rig RIG.yaml naming each camera's topic (issue 15).
+--wheel-speed uses the wheel speed (the folder's wheel_speed.csv, or SOURCE: a log topic or a CSV
+timestamp,speed) in the wheel-speed factor. Without DATASET the
 built-in demo runs: the demo route is rendered into a cache folder on first use
 (``$AMPC_VO_CACHE``, default ``~/.cache/ampc_vo``) and evaluated against its ground truth at the end.
 
@@ -35,6 +38,12 @@ from ampc_vo.errors import AmpcError  # noqa: E402
 from ampc_vo.tools.cli import ExitContext, run_cli  # noqa: E402
 
 
+def with_wheel_speed(config, source: str | None):
+    """``config`` with the wheel-speed factor on and, if given, its source (a topic or a CSV)."""
+    scale = dataclasses.replace(config.scale, wheel_speed=True, wheel_speed_source=source or config.scale.wheel_speed_source)
+    return dataclasses.replace(config, scale=scale)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dataset", type=Path, nargs="?", default=None, help="dataset or KITTI folder (default: the built-in demo)")
@@ -48,6 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--wheel-speed-from-groundtruth", type=float, default=None, metavar="SIGMA_M",
                         help="simulate wheel odometry from the ground truth with this noise (m) and enable the wheel-speed factor")
+    parser.add_argument("--rig", type=Path, default=None, help="rig.yaml for a recording (each camera's topic)")
+    parser.add_argument("--wheel-speed", nargs="?", const="", default=None, metavar="SOURCE",
+                        help="use wheel speed: the dataset folder's wheel_speed.csv, or SOURCE (a log topic or a CSV timestamp,speed)")
     args = parser.parse_args(argv)
     if args.dataset is not None and args.out is None:
         parser.error("--out is required with a DATASET")
@@ -63,6 +75,8 @@ def _run(args: argparse.Namespace, context: ExitContext) -> int:
         config = config.with_mode(args.mode)
     if args.source:
         config = dataclasses.replace(config, source=args.source)
+    if args.wheel_speed is not None:
+        config = with_wheel_speed(config, args.wheel_speed or None)
     logging.basicConfig(level=config.output.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
     demo = args.dataset is None
     if demo:
@@ -75,7 +89,7 @@ def _run(args: argparse.Namespace, context: ExitContext) -> int:
     from ampc_vo.tools.runner import run_sequence
     from ampc_vo.frontend.sources import open_sequence
 
-    sequence = open_sequence(dataset_path, config, args.start, args.stop)
+    sequence = open_sequence(dataset_path, config, args.start, args.stop, rig=args.rig, progress=False if args.no_progress else None)
     wheel = None
     if args.wheel_speed_from_groundtruth is not None:
         if sequence.truth is None:

@@ -90,13 +90,23 @@ class RunSummary:
     run_id: str | None = None  # the run that wrote the output folder (ampc_vo.io.run_folder)
 
 
+def _with_chord_length(T_i_j: np.ndarray, chord: float) -> np.ndarray:
+    """``T_i_j`` with its translation scaled to length ``chord`` (direction and rotation kept; a
+    motion without translation moves straight ahead)."""
+    T = T_i_j.copy()
+    length = float(np.linalg.norm(T[:3, 3]))
+    T[:3, 3] = T[:3, 3] * (chord / length) if length > 1e-9 else np.array([chord, 0.0, 0.0])
+    return T
+
+
 class OdometryPipeline:
     """Keyframe selection, initialisation and smoothing over a stream of frames (module docstring)."""
 
     def __init__(self, rig: Rig, config: VoConfig, writer: OutputWriter | None = None,
                  wheel_odometry: Callable[[float, float], float] | None = None) -> None:
-        """``wheel_odometry(t_i, t_j)``: chord (m) of the tractor axle midpoint between two times,
-        used when ``scale.wheel_speed`` is on (the optional WheelSpeedFactor)."""
+        """``wheel_odometry(t_i, t_j)``: chord (m) of the tractor axle midpoint between two times
+        (``None``: not measured then), used when ``scale.wheel_speed`` is on: in the optional
+        WheelSpeedFactor and as the measured chord of the scale bootstrap."""
         self.rig = rig
         self.wheel_odometry = wheel_odometry
         self.config = config
@@ -148,6 +158,9 @@ class OdometryPipeline:
         acceleration = self.config.scale.smooth_speed_sigma_mps2 or 1.0
         predicted_chord = float(np.linalg.norm(predicted[:2, 3]))
         prediction_sigma = 0.1 + 0.25 * predicted_chord + acceleration * elapsed**2
+        wheel = self._wheel_chord(self._last_keyframe, frame)
+        if wheel is not None:  # wheel odometry measures the chord: the prediction takes it
+            predicted, prediction_sigma = _with_chord_length(predicted, wheel), self.config.scale.wheel_speed_sigma_m
         tractor = self.initializer.tractor(self._last_keyframe, frame, predicted, prediction_sigma if self._velocity is not None else None)
         decision = self.policy.decide(tractor, elapsed)
         if not decision.is_keyframe:
@@ -166,11 +179,20 @@ class OdometryPipeline:
         shared = sum(len(pair) for pair in camera_pairs(self.rig, "tractor", self._last_keyframe, frame))
         return shared >= 4 * self.config.keyframes.min_tracks
 
+    def _wheel_chord(self, first: FrameObservations, second: FrameObservations) -> float | None:
+        """The wheel-odometry chord (m) between two frames when ``scale.wheel_speed`` is on and the
+        wheel odometry covers both times, else ``None``."""
+        if not self.config.scale.wheel_speed or self.wheel_odometry is None:
+            return None
+        chord = self.wheel_odometry(first.timestamp, second.timestamp)
+        return None if chord is None else float(chord)
+
     def _add_keyframe(self, frame: FrameObservations, tractor: TractorMotion, elapsed: float) -> list[KeyframeEstimate]:
         predicted_trailer = self._predicted(elapsed, self._trailer_velocity) if self._trailer_velocity is not None else None
         init = self.initializer.keyframe(self._last_keyframe, frame, tractor, self._hitch, predicted_trailer)
-        if self.config.scale.wheel_speed and self.wheel_odometry is not None:
-            init = dataclasses.replace(init, wheel_chord=float(self.wheel_odometry(self._last_keyframe.timestamp, frame.timestamp)))
+        chord = self._wheel_chord(self._last_keyframe, frame)
+        if chord is not None:
+            init = dataclasses.replace(init, wheel_chord=chord)
         self._statuses[init.tractor_status.value] = self._statuses.get(init.tractor_status.value, 0) + 1
         if self.smoother.keyframe_count == 0:
             self.smoother.add_keyframe(self._last_keyframe, _first_init())
@@ -188,12 +210,14 @@ class OdometryPipeline:
         published (no speed is assumed, issue 14): the buffer waits for one, keeping at most
         ``bootstrap_max_s`` of keyframes (older ones get no poses, with a warning)."""
         scale = self.config.scale
-        tractor = self.initializer.tractor(self._last_keyframe, frame, self._predicted(elapsed, None))
+        wheel = self._wheel_chord(self._last_keyframe, frame)  # wheel odometry measures the chord directly
+        predicted = self._predicted(elapsed, None) if wheel is None else _with_chord_length(self._predicted(elapsed, None), wheel)
+        tractor = self.initializer.tractor(self._last_keyframe, frame, predicted)
         rotation = abs(tractor.yaw_change) >= self.policy.min_rotation_rad
         observed = tractor.status is MotionStatus.OK and tractor.chord >= self.config.keyframes.standstill_distance_m
         if not (observed or rotation or tractor.status is MotionStatus.TOO_FEW_TRACKS or elapsed >= scale.bootstrap_interval_s - 1e-9):
             return []
-        measured = self.initializer.measured_chord(self._last_keyframe, frame, tractor)
+        measured = (wheel, scale.wheel_speed_sigma_m) if wheel is not None else self.initializer.measured_chord(self._last_keyframe, frame, tractor)
         self._bootstrap.append((frame, tractor))
         self._bootstrap_speeds.append(None if measured is None else measured[0] / elapsed)
         self._last_keyframe = frame

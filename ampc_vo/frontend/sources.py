@@ -13,7 +13,12 @@ sees. Which source a folder gets:
   the left-camera frame (``T_body_reference``, ``GroundTruth.T_tractor_reference``);
 - our dataset folder (DESIGN section 5) with images: the image frontend on every rig camera;
 - our dataset folder with ``measurements.npz`` and no images (or ``source: bearings``): the
-  simulator's bearing measurements replayed.
+  simulator's bearing measurements replayed;
+- a recording (a ROS 1 ``.bag``, a ROS 2 bag folder or an ``.mcap`` file, ``ampc_vo.io.bags``) with
+  a rig whose cameras name their topics: the image frontend on its frames (:func:`_open_log`).
+
+Every source carries the wheel speed named by ``scale.wheel_speed_source`` (a log topic or CSV) or
+the folder's ``wheel_speed.csv`` (``Sequence.wheel_speed``, ``ampc_vo.io.wheel_speed``).
 
 The config key ``source`` (``auto`` | ``images`` | ``bearings``) forces a choice; a forced source
 the folder cannot provide is a :class:`DatasetError` that says what is missing.
@@ -41,6 +46,7 @@ from ampc_vo.frontend.worker import WorkerStartError, stream_in_process
 
 if TYPE_CHECKING:  # evaluation (evo, SciPy) is not imported by the frontend's worker process
     from ampc_vo.io.groundtruth import GroundTruth
+    from ampc_vo.io.wheel_speed import WheelSpeed
 
 logger = logging.getLogger(__name__)
 
@@ -72,6 +78,7 @@ class Sequence:
     truth: GroundTruth | None
     steps: Callable[[], Iterator[FrameStep]]
     T_body_reference: np.ndarray = field(default_factory=lambda: np.eye(4))
+    wheel_speed: WheelSpeed | None = None  # rear-axle speed samples (scale.wheel_speed_source)
 
     def __len__(self) -> int:
         return int(self.timestamps.shape[0])
@@ -201,9 +208,45 @@ def default_config_path(path: str | Path | None) -> Path | None:
     return None
 
 
-def open_sequence(path: str | Path, config: VoConfig, start: int = 0, stop: int | None = None) -> Sequence:
-    """Open a dataset folder or KITTI folder as a :class:`Sequence` (module docstring) of its
-    frames ``[start, stop)`` (default: all; frames keep their numbers, the ground truth stays whole)."""
+def open_sequence(path: str | Path, config: VoConfig, start: int = 0, stop: int | None = None,
+                  rig: Rig | str | Path | None = None, progress: bool | None = None) -> Sequence:
+    """Open a dataset folder, KITTI folder or recording as a :class:`Sequence` (module docstring)
+    of its frames ``[start, stop)`` (default: all; frames keep their numbers, the ground truth stays
+    whole). ``rig`` (a :class:`Rig` or a rig.yaml path) is needed for a recording, whose cameras it
+    names by topic; ``progress``: a progress bar over a long recording's index pass."""
+    from ampc_vo.io.bags import is_log
+    from ampc_vo.io.wheel_speed import load_wheel_speed
+
+    if is_log(path):
+        sequence = _open_log(Path(path), config, start, stop, rig, progress)
+    else:
+        if rig is not None:
+            logger.warning("%s: --rig is for recordings; a folder runs with its own rig.yaml (the rig given is ignored)", path)
+        sequence = _open_folder(path, config, start, stop)
+    wheel_speed = load_wheel_speed(config.scale.wheel_speed_source, path)
+    if wheel_speed is not None:
+        logger.info("%s: wheel speed, %d samples over %.1f s", path, len(wheel_speed), wheel_speed.timestamps[-1] - wheel_speed.timestamps[0])
+    return dataclasses.replace(sequence, wheel_speed=wheel_speed)
+
+
+def _open_log(path: Path, config: VoConfig, start: int, stop: int | None, rig: Rig | str | Path | None, progress: bool | None) -> Sequence:
+    """A recording (``ampc_vo.io.bags``) through the image frontend; :class:`DatasetError` without a rig."""
+    from ampc_vo.io.bags import read_recording
+    from ampc_vo.rig import load_rig
+
+    if rig is None:
+        raise DatasetError(f"{path}: a recording needs a rig (--rig RIG.yaml) whose cameras name their topics")
+    if config.source == "bearings":
+        raise DatasetError(f"{path}: a recording has images only; source 'bearings' cannot be used")
+    rig = rig if isinstance(rig, Rig) else load_rig(rig)
+    recording = read_recording(path, rig, progress)
+    frames = frame_selection(len(recording), start, stop, str(path))
+    logger.info("%s: recording, %d frames of cameras %s (image frontend)", path, len(frames), ", ".join(recording.camera_names))
+    return Sequence(path, "images", rig, recording.timestamps[frames.start:frames.stop], None,
+                    lambda: _frontend_stream(image_steps, recording, rig, config, frames))
+
+
+def _open_folder(path: str | Path, config: VoConfig, start: int, stop: int | None) -> Sequence:
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path}: no such dataset folder")

@@ -560,6 +560,9 @@ def simulate_dataset(config: SimulationConfig | str | Path, out_dir: str | Path,
     write_dataset(out_dir, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory,
                   measurements=result.measurements, with_images=images_written,
                   camera_timestamps=_stated_capture_times(result))
+    from ampc_vo.sim.wheel_odometry import write_simulated_wheel_speed  # issue 15: wheel_speed.csv
+
+    write_simulated_wheel_speed(out_dir, result.trajectory, result.config.seed)
     LOGGER.info("dataset written to %s in %.1f s", out_dir, time.perf_counter() - started)
     return dataclasses.replace(result, images_written=images_written)
 

@@ -20,6 +20,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from ampc_vo.config import VoConfig
+from ampc_vo.errors import DatasetError
 from ampc_vo.observations import FrameObservations
 from ampc_vo.backend.pipeline import RunSummary, run_on_frames
 from ampc_vo.backend.smoother import KeyframeEstimate
@@ -62,6 +63,21 @@ def _truth_at(sequence: Sequence, frame: int, timestamp: float) -> tuple[np.ndar
     return truth.T_world_tractor[index], trailer, hitch
 
 
+def sequence_wheel_odometry(sequence: Sequence, config: VoConfig) -> Callable[[float, float], float | None] | None:
+    """The chord of the sequence's wheel speed (``Sequence.wheel_speed``) when ``scale.wheel_speed``
+    is on; a :class:`DatasetError` when it is on and the sequence has none."""
+    if not config.scale.wheel_speed:
+        if sequence.wheel_speed is not None:
+            logger.info("%s: has wheel speed; set scale.wheel_speed: true (run_odometry.py --wheel-speed) to use it", sequence.path)
+        return None
+    if sequence.wheel_speed is None:
+        raise DatasetError(f"{sequence.path}: scale.wheel_speed is on but there is no wheel speed "
+                           f"(a wheel_speed.csv in the dataset folder, or scale.wheel_speed_source: a log topic or CSV)")
+    from ampc_vo.scale.wheel import wheel_odometry_from_speed
+
+    return wheel_odometry_from_speed(sequence.wheel_speed.timestamps, sequence.wheel_speed.speed)
+
+
 def run_sequence(sequence: Sequence, config: VoConfig, out_dir: str | Path, rerun_path: str | Path | None = None,
                  progress: bool | None = None, wheel_odometry: Callable[[float, float], float] | None = None) -> tuple[RunSummary, list[KeyframeEstimate]]:
     """Run the pipeline over ``sequence`` writing into ``out_dir`` (module docstring)."""
@@ -91,6 +107,8 @@ def run_sequence(sequence: Sequence, config: VoConfig, out_dir: str | Path, reru
                                hitch_angle=estimate.hitch_angle, hitch_sigma=estimate.hitch_sigma)
 
     steps = sequence.steps()
+    if wheel_odometry is None:
+        wheel_odometry = sequence_wheel_odometry(sequence, config)
     try:
         return run_on_frames(sequence.rig, config, timer.wrap(steps, log_step), out_dir, len(sequence), progress,
                              wheel_odometry, on_frame=log_published, source_seconds=timer.seconds, dataset=sequence.path)
