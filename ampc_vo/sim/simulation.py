@@ -40,7 +40,7 @@ from scipy.spatial import cKDTree
 from ampc_vo.errors import ConfigError, OutputError
 from ampc_vo.geometry import invert_pose
 from ampc_vo.io.groundtruth import Trajectory
-from ampc_vo.sim.attitude import BodyAngles, poses_on_road
+from ampc_vo.sim.attitude import BodyAngles, mount_vibration, poses_on_road
 from ampc_vo.sim.kinematics import AxleGroup, simulate_kinematics
 from ampc_vo.sim.road import FLAT_ROAD, RoadSurface
 from ampc_vo.io.measurements import MEASUREMENTS_FILE, Measurements, load_measurements, save_measurements
@@ -349,6 +349,9 @@ class SimulationResult:
     dense_trajectory: Trajectory | None = None
     road: RoadSurface = FLAT_ROAD
     body_angles: BodyAngles | None = None
+    # per camera name, (N_dense, 3, 3) vibration of its mount over dense_trajectory's samples
+    # (``T_body_camera @ R_mount``; attitude.mount_vibration), for the camera side to apply
+    mount_vibration: dict[str, np.ndarray] | None = None
 
 
 def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> SimulationResult:
@@ -364,7 +367,9 @@ def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> S
     scene = build_scene(trajectory, rng, config.scene, road=road)
     landmarks = sample_landmarks(scene, trajectory, config.scene, rng, road=road)
     measurements = simulate_measurements(trajectory, rig, landmarks, scene, config, rng)
-    return SimulationResult(config, rig, trajectory, scene, landmarks, measurements, dense_trajectory=dense, road=road, body_angles=angles)
+    mounts = mount_vibration(rig, dense, config.vehicle, np.random.default_rng([config.seed, 17])) if config.vehicle.moves_bodies else None
+    return SimulationResult(config, rig, trajectory, scene, landmarks, measurements, dense_trajectory=dense, road=road, body_angles=angles,
+                            mount_vibration=mounts)
 
 
 def dense_factor(config: SimulationConfig) -> int:

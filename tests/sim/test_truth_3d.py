@@ -235,3 +235,23 @@ def test_axle_group_effective_distance_matches_winkler_for_gentle_turns():
     moved = tridem.effective_distance(distance, np.array([1e-3, 0.1, 0.2]))
     assert np.ptp(moved) > 0.01  # the effective axle moves with the turn radius
     assert AxleGroup(1).effective_distance(distance, 0.1)[0] == distance
+
+
+def test_camera_mounts_vibrate_with_speed_and_the_engine():
+    from ampc_vo.sim.attitude import VehicleConfig, mount_vibration
+
+    config, rig, dense, _, _ = _world(HILL_ROUTE, road=HILL)
+    vehicle = VehicleConfig(engine_deg=0.02, mount_deg_per_mps=0.004)
+    mounts = mount_vibration(rig, dense, vehicle, np.random.default_rng(3))
+    assert set(mounts) == set(rig.camera_names)
+    moving = np.abs(dense.speed) > 7.0
+    standing = dense.speed == 0.0
+    for camera in rig.cameras:
+        rotation = mounts[camera.name]
+        angle = np.degrees(np.arccos(np.clip((np.trace(rotation, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
+        # RMS per axis 0.004 deg per m/s: ~0.03 deg per axis at 7-8 m/s, sqrt(3) of it in total
+        assert 0.02 < np.sqrt(np.mean(angle[moving] ** 2)) < 0.12, camera.name
+        if camera.body == "tractor":   # idling engine shakes the cab mounts at standstill
+            assert 0.003 < angle[standing].max() < 0.03
+        else:
+            assert angle[standing].max() < 1e-6
