@@ -1,10 +1,12 @@
 """Simulated landmarks and feature tracks with ground truth (DESIGN section 6; issue 2).
 
-Pipeline of :func:`simulate_dataset`: route config -> kinematics (``kinematics.simulate_kinematics``)
--> procedural scene (``scene.build_scene``) -> landmarks sampled **on the scene's quads** (so that
-rendered images and bearing measurements show the same world) -> per camera and frame visibility
--> tracks with pixel noise and outliers -> dataset folder (``ampc_vo.io.folder``) and, when the
-renderer is available, images.
+Pipeline of :func:`simulate_dataset`: route config -> true motion (:func:`simulate_truth`: planar
+kinematics ``kinematics.simulate_kinematics`` at >= 200 Hz, the road surface ``road``, 6-DoF poses on
+it ``attitude.poses_on_road``; the camera frames are every k-th dense sample) -> procedural scene
+(``scene.build_scene``, on the road) -> landmarks sampled **on the scene's quads** (so that
+rendered images and bearing measurements show the same world; ground points on the road surface)
+-> per camera and frame visibility -> tracks with pixel noise and outliers -> dataset folder
+(``ampc_vo.io.folder``) and, when the renderer is available, images.
 
 Visibility of a landmark in a camera at a frame (all vectorised over landmarks):
 
@@ -396,7 +398,8 @@ def simulate_truth(config: SimulationConfig, rig: Rig) -> tuple[Trajectory, Road
     tilted = road_config.has_profile or road_config.plane_slope != (0.0, 0.0)
     planar = simulate_kinematics(config.route, config.rate_hz, tractor_axle_x, trailer_axle_x, config.initial_hitch_angle, config.duration,
                                  slip=config.tyre_slip, samples_per_frame=dense_factor(config), axle_group=group,
-                                 lateral_slope=road_config.lane_slope(config.route.curvature) if tilted and config.tyre_slip > 0.0 else None)
+                                 lateral_slope=road_config.lane_slope(config.route.design_curvature, config.route.lane_change_offset)
+                                 if tilted and config.tyre_slip > 0.0 else None)
     if not tilted and not road_config.bumps:
         road = FLAT_ROAD
     else:

@@ -97,10 +97,37 @@ def test_without_slip_each_axle_has_no_lateral_velocity(rigid_hill):
         assert np.abs(longitudinal).max() > 7.0
 
 
-def test_with_slip_the_trailer_axle_does_slide(moving_hill):
-    _, rig, dense, _, _ = moving_hill
+def _steady_turn(dense) -> np.ndarray:
+    """Samples in the middle of HILL_ROUTE's constant-radius arc (R 45 m at 8 m/s)."""
+    arc_start = 45.0 + 10.0
+    arc_length = 45.0 * math.radians(50.0) - 20.0
+    return (dense.arc_length > arc_start + 0.3 * arc_length) & (dense.arc_length < arc_start + 0.7 * arc_length)
+
+
+def test_tyre_slip_and_cross_slope_drift_move_the_tractor_axle_sideways():
+    """Linear tyre: the axle's velocity points outward by slip * (v^2 kappa + g dh/dn); on this banked
+    left curve (AASHTO method 1: e = e_max min(R_min / R, 1)) the bank's gravity offsets part of it."""
+    config, rig, dense, _, _ = _world(HILL_ROUTE, road=HILL, slip=0.15)
+    steady = _steady_turn(dense)
+    longitudinal, lateral = _axle_velocity(dense, "tractor", rig.axle_x("tractor"))
+    minimum_radius = 10.0**2 / (9.81 * (0.06 + 0.15))
+    bank = 0.06 * min(minimum_radius / 45.0, 1.0)
+    force = 8.0**2 / 45.0 - 9.81 * bank                 # dh/dn = -e in the right lane of a left curve
+    expected = -8.0 * math.radians(0.15) * force
+    assert np.median(lateral[steady]) == pytest.approx(expected, rel=0.1)
+
+
+def test_tridem_slides_about_its_effective_axle():
+    """Without slip the tridem's centre (the rig's axle_x) moves sideways at psi_B' (L_eq - L) with
+    Winkler's L_eq = L + sum(x_i^2) / (n L) (gentle turn)."""
+    config, rig, dense, _, _ = _world(HILL_ROUTE, road=HILL, vehicle={"trailer_axles": 3})
+    steady = _steady_turn(dense)
     _, lateral = _axle_velocity(dense, "trailer", rig.axle_x("trailer"))
-    assert np.abs(lateral).max() > 0.02  # slip, cross-slope drift and the tridem's effective axle
+    yaw_rate = np.gradient(np.unwrap(np.arctan2(dense.T_world_trailer[:, 1, 0], dense.T_world_trailer[:, 0, 0])), dense.timestamps)
+    distance = -rig.axle_x("trailer")
+    shift = 2 * 1.31**2 / (3 * distance)
+    assert np.median(np.abs(lateral[steady])) == pytest.approx(np.median(np.abs(yaw_rate[steady])) * shift, rel=0.1)
+    assert np.median(np.abs(lateral[steady])) > 0.008  # a single axle: < 1e-3 here (test above)
 
 
 def test_hitch_angle_is_the_yaw_of_R_tractor_trailer(moving_hill):
