@@ -36,6 +36,11 @@ lower for empty ones.
 pitch, random phase per body) and road-induced vibration (Gaussian noise through the same
 second-order filter at ``road_hz``, RMS ``road_deg_per_mps`` times the speed), rotations about the
 king-pin added on top of the suspension.
+
+**Camera mounts** (:func:`mount_vibration`): each camera's bracket shakes on its own, a small
+rotation ``R_mount`` about the camera's axes (``T_body_camera @ R_mount`` is the vibrating mount):
+the engine sinusoid at half amplitude on tractor mounts, plus road noise through a bracket
+resonance at ``mount_hz`` with RMS ``mount_deg_per_mps`` times the speed; independent per camera.
 """
 from __future__ import annotations
 
@@ -81,10 +86,12 @@ class VehicleConfig:
     engine_deg: float = 0.0
     road_hz: float = 8.0
     road_deg_per_mps: float = 0.0
+    mount_hz: float = 20.0               # camera bracket resonance
+    mount_deg_per_mps: float = 0.0       # RMS of the mount rotation per m/s of speed
 
     @property
     def moves_bodies(self) -> bool:
-        return self.suspension or self.engine_deg > 0.0 or self.road_deg_per_mps > 0.0
+        return self.suspension or self.engine_deg > 0.0 or self.road_deg_per_mps > 0.0 or self.mount_deg_per_mps > 0.0
 
 
 @dataclass(frozen=True)
@@ -190,6 +197,27 @@ def _body_motion(accelerations: tuple[np.ndarray, np.ndarray], speed: np.ndarray
         noise /= max(float(np.std(noise)), 1e-12)
         angles += np.radians(vehicle.road_deg_per_mps) * np.abs(speed)[:, None] * noise
     return angles
+
+
+def mount_vibration(rig, trajectory: Trajectory, vehicle: VehicleConfig, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Per camera name, (N, 3, 3) rotations ``R_mount`` of its bracket over the (dense) trajectory's
+    samples (module docstring); identities when the vehicle has no engine or mount vibration."""
+    count = len(trajectory)
+    dt = float(np.median(np.diff(trajectory.timestamps))) if count > 1 else 0.0
+    speed = np.abs(trajectory.speed) if trajectory.speed is not None else np.zeros(count)
+    times = trajectory.timestamps - trajectory.timestamps[0]
+    result = {}
+    for camera in rig.cameras:
+        angles = np.zeros((count, 3))
+        if vehicle.engine_deg > 0.0 and camera.body == "tractor":
+            phases = rng.uniform(0.0, 2.0 * np.pi, size=3)
+            angles += 0.5 * np.radians(vehicle.engine_deg) * np.sin(2.0 * np.pi * vehicle.engine_hz * times[:, None] + phases[None, :])
+        if vehicle.mount_deg_per_mps > 0.0 and count > 2:
+            noise = _second_order(rng.normal(0.0, 1.0, size=(count, 3)), dt, vehicle.mount_hz, 0.2)
+            noise /= max(float(np.std(noise)), 1e-12)
+            angles += np.radians(vehicle.mount_deg_per_mps) * speed[:, None] * noise
+        result[camera.name] = rotation_zyx(angles[:, 2], angles[:, 1], angles[:, 0])
+    return result
 
 
 def hitch_angle_of(T_world_tractor: np.ndarray, T_world_trailer: np.ndarray) -> np.ndarray:

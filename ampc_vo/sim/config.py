@@ -23,7 +23,7 @@ Example::
     road: {start_grade_percent: 0, grades: [[200, 6], [500, -8]], vertical_curve_m: 120, crown_percent: 2.5,
            max_superelevation_percent: 6, design_speed: 20, lane_offset_m: 1.75,
            plane_slope_percent: [0, 0], bumps: [{station: 80, lateral: -1.75, length: 0.8, width: 0.6, height: -0.05}]}
-    vehicle: {trailer_axles: 3, load: loaded, suspension: true, engine_deg: 0.01, road_deg_per_mps: 0.004}
+    vehicle: {trailer_axles: 3, load: loaded, suspension: true, engine_deg: 0.01, road_deg_per_mps: 0.004, mount_deg_per_mps: 0.003}
     dense_rate_hz: 200                 # SimulationResult.dense_trajectory
     cameras: {left: {offset_ms: 23}}   # optional, per-camera timing and image formation (sim.camera_settings)
     traffic: [{kind: oncoming}]        # optional, moving vehicles (sim.traffic)

@@ -73,20 +73,10 @@ class RoadProfile:
     vertical_curve_m: float = 80.0                            # L of every parabolic vertical curve
     crown: float = 0.0                                        # cross-slope c of each half on straights
     max_superelevation: float = 0.0                           # e_max
-    design_speed: float = 15.0                                # v_d (m/s) of e = kappa v_d^2 / g
-
-    def grade(self, station: np.ndarray) -> np.ndarray:
-        """Grade ``g(s)`` (module docstring)."""
-        station = np.asarray(station, dtype=float)
-        grade = np.full(station.shape, self.start_grade)
-        previous = self.start_grade
-        for at, new in self.grade_changes:
-            grade = grade + (new - previous) * np.clip((station - at + 0.5 * self.vertical_curve_m) / self.vertical_curve_m, 0.0, 1.0)
-            previous = new
-        return grade
+    design_speed: float = 15.0                                # v_d (m/s): e_max is reached at R_min = v_d^2 / (g (e_max + f_max))
 
     def elevation(self, station: np.ndarray) -> np.ndarray:
-        """Centre-line elevation ``z(s)``, the closed-form integral of :meth:`grade` (z(0) = 0)."""
+        """Centre-line elevation ``z(s)``, the closed-form integral of the grade ``g(s)`` (module docstring; z(0) = 0)."""
         station = np.asarray(station, dtype=float)
 
         def ramp_integral(s: np.ndarray, at: float) -> np.ndarray:
@@ -226,21 +216,24 @@ class RoadConfig:
     def profile(self) -> RoadProfile:
         return RoadProfile(self.start_grade, self.grade_changes, self.vertical_curve_m, self.crown, self.max_superelevation, self.design_speed)
 
-    def lane_slope(self, curvature: Callable[[float], float]) -> Callable[[float, float], float]:
+    def lane_slope(self, curvature: Callable[[float], float], lane_change_offset: Callable[[float], float] | None = None
+                   ) -> Callable[[float, float], float]:
         """``dh/dn`` (rise per metre to the left) of the driven lane at a station and heading, for
         the kinematics' cross-slope drift: the plane's gradient across the heading plus the
-        cross-section's slope at ``d = -lane_offset_m`` (bumps ignored)."""
+        cross-section's slope at ``d = -lane_offset_m + lane_change_offset(station)`` with the
+        design line's ``curvature(station)`` (bumps ignored)."""
         profile = self.profile()
-        lateral = -self.lane_offset_m
         slope_x, slope_y = self.plane_slope
         has_profile = self.has_profile
         crown, maximum = profile.crown, profile.max_superelevation
         minimum_radius = profile.design_speed**2 / (GRAVITY * (maximum + SIDE_FRICTION))
-        side = math.copysign(1.0, lateral) if lateral != 0.0 else 0.0
+        lane = -self.lane_offset_m
 
         def slope(station: float, heading: float) -> float:  # scalar math: called 4 times per integration step
             value = -slope_x * math.sin(heading) + slope_y * math.cos(heading) if slope_x or slope_y else 0.0
             if has_profile:
+                lateral = lane + (lane_change_offset(station) if lane_change_offset is not None else 0.0)
+                side = math.copysign(1.0, lateral) if lateral != 0.0 else 0.0
                 bank = maximum * min(max(curvature(max(station, 0.0)) * minimum_radius, -1.0), 1.0)
                 value += -bank - (crown * max(0.0, 1.0 - abs(bank) / crown) * side if crown > 0.0 else 0.0)
             return value

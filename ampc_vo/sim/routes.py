@@ -187,6 +187,23 @@ class Route:
         return target
 
 
+    def design_curvature(self, s: float) -> float:
+        """Curvature of the road's design line at arc length ``s``: the route's, with lane changes flat."""
+        if not 0.0 <= s < self.length or self.segments[self._locate(s)].kind == "lane_change":
+            return 0.0
+        return self.curvature(s)
+
+    def lane_change_offset(self, s: float) -> float:
+        """Left offset (m) of the driven path from the design line at arc length ``s``: the lane
+        changes so far, ``offset (u - sin(2 pi u) / (2 pi))`` at fraction ``u`` of each (the double
+        integral of its curvature, small angles)."""
+        total = 0.0
+        for start, segment in zip(self._starts, self.segments):  # type: ignore[attr-defined]
+            if segment.kind == "lane_change" and s > start:
+                fraction = min((s - start) / segment.length, 1.0)
+                total += segment.offset * (fraction - math.sin(2.0 * math.pi * fraction) / (2.0 * math.pi))
+        return total
+
     def design_path(self, start_xy: tuple[float, float], extension_m: float, step_m: float = 0.25) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The road's design line: the rear-axle path of the route's curvature with every
         ``lane_change`` flattened to a straight (a lane change moves the vehicle, not the road),
@@ -194,8 +211,7 @@ class Route:
         Returns points (N, 2), station (N,: route arc length, negative before the start) and
         curvature (N,). Heading and position are integrated with the trapezoidal rule."""
         station = np.arange(-extension_m, self.length + extension_m + 1e-9, step_m)
-        curvature = np.array([0.0 if not 0.0 <= s < self.length or self.segments[self._locate(s)].kind == "lane_change" else self.curvature(s)
-                              for s in station])
+        curvature = np.array([self.design_curvature(s) for s in station])
         heading = np.concatenate([[0.0], np.cumsum(0.5 * (curvature[1:] + curvature[:-1]) * step_m)])
         heading -= np.interp(0.0, station, heading)
         direction = np.column_stack([np.cos(heading), np.sin(heading)])

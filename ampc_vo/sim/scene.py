@@ -158,36 +158,82 @@ def _strip_quads(centerline: Centerline, lateral_from: float, lateral_to: float,
     return quads
 
 
+_MERGE_PLAN_M = 0.02      # merged tilted strips: largest distance of the centre line from the merged chord
+_MERGE_HEIGHT_M = 0.01    # and largest height difference from the 2 m pieces they replace
+_MERGE_PIECES = 12        # at most this many 2 m pieces in one quad
+
+
+def _surface_quad(start: np.ndarray, end: np.ndarray, lateral_from: float, lateral_to: float, z: float, road: "RoadSurface"
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """``(origin, axis_u, axis_v, width, height)`` of the band ``lateral_from..lateral_to`` over the
+    chord ``start -> end`` (2-D) tilted onto the surface (:func:`_strip_quads`)."""
+    chord = end - start
+    direction = chord / np.linalg.norm(chord)
+    normal = np.array([-direction[1], direction[0]])
+    middle = 0.5 * (lateral_from + lateral_to)
+    across = np.linspace(lateral_from, lateral_to, 5)
+    heights = road.height(np.vstack([start + across[:, None] * normal, start + middle * normal, end + middle * normal]))
+    begin_mid = np.append(start + middle * normal, heights[5])
+    end_mid = np.append(end + middle * normal, heights[6])
+    axis_u = (end_mid - begin_mid) / np.linalg.norm(end_mid - begin_mid)
+    edge = np.append((lateral_to - lateral_from) * normal, heights[4] - heights[0])
+    axis_v = edge - (edge @ axis_u) * axis_u
+    axis_v /= np.linalg.norm(axis_v)
+    plane = heights[0] + (heights[4] - heights[0]) * (across - lateral_from) / (lateral_to - lateral_from)
+    origin = np.append(start + lateral_from * normal, heights[0] + float(np.mean(heights[:5] - plane)) + z)
+    return origin, axis_u, axis_v, float(np.linalg.norm(end_mid - begin_mid)), float(np.linalg.norm(edge))
+
+
+def _plane_height(origin: np.ndarray, axis_u: np.ndarray, axis_v: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Height of the quad's plane over points (N, 2)."""
+    normal = np.cross(axis_u, axis_v)
+    return origin[2] - ((xy[:, 0] - origin[0]) * normal[0] + (xy[:, 1] - origin[1]) * normal[1]) / normal[2]
+
+
 def _tilted_strip_quads(centerline: Centerline, lateral_from: float, lateral_to: float, z: float, kind: str, texture: str,
                         texture_scale: float, road: "RoadSurface") -> list[Quad]:
-    """:func:`_strip_quads` on the road surface (vectorised over the strip's pieces)."""
-    points, normals = centerline.points[:, :2], centerline.normals[:, :2]
-    chord = np.diff(points, axis=0)
-    length = np.linalg.norm(chord, axis=1)
-    keep = length > 1e-6
-    start, chord, length, normal = points[:-1][keep], chord[keep], length[keep], normals[:-1][keep]
-    direction = chord / length[:, None]
-    middle = 0.5 * (lateral_from + lateral_to)
-    begin = start - _ROAD_OVERLAP_M * direction
-    end = start + (length + _ROAD_OVERLAP_M)[:, None] * direction
-    across = np.linspace(lateral_from, lateral_to, 5)
-    samples = begin[:, None, :] + across[None, :, None] * normal[:, None, :]          # (P, 5, 2)
-    heights = road.height(samples)
-    begin_mid = np.column_stack([begin + middle * normal, road.height(begin + middle * normal)])
-    end_mid = np.column_stack([end + middle * normal, road.height(end + middle * normal)])
-    axis_u = end_mid - begin_mid
-    axis_u /= np.linalg.norm(axis_u, axis=1, keepdims=True)
-    edge = np.column_stack([begin + lateral_to * normal, heights[:, -1]]) - np.column_stack([begin + lateral_from * normal, heights[:, 0]])
-    axis_v = edge - np.einsum("ij,ij->i", edge, axis_u)[:, None] * axis_u
-    axis_v /= np.linalg.norm(axis_v, axis=1, keepdims=True)
-    # the plane through the band's two edges at the start; shift it by the mean deviation across
-    plane = heights[:, :1] + (heights[:, -1:] - heights[:, :1]) * (across - lateral_from)[None, :] / (lateral_to - lateral_from)
-    lift = np.mean(heights - plane, axis=1) + z
-    origin = np.column_stack([begin + lateral_from * normal, heights[:, 0] + lift])
-    width = np.linalg.norm(np.column_stack([end - begin, end_mid[:, 2] - begin_mid[:, 2]]), axis=1)
-    height = np.linalg.norm(edge, axis=1)
-    return [Quad(origin[index], axis_u[index], axis_v[index], float(width[index]), float(height[index]), kind, texture, texture_scale)
-            for index in range(len(origin))]
+    """:func:`_strip_quads` on the road surface: 2 m pieces, merged greedily into longer quads where
+    the centre line stays within ``_MERGE_PLAN_M`` of the merged chord and the merged plane within
+    ``_MERGE_HEIGHT_M`` of the pieces' planes (straights on a constant grade become one quad, as on
+    flat roads; curves and vertical curves keep short pieces)."""
+    points = centerline.points[:, :2]
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(points, axis=0), axis=1) > 1e-6])
+    points = points[keep]
+    count = len(points) - 1
+    if count < 1:
+        return []
+
+    def chord_ends(first: int, last: int) -> tuple[np.ndarray, np.ndarray]:
+        direction = points[last + 1] - points[first]
+        direction = direction / np.linalg.norm(direction)
+        return points[first] - _ROAD_OVERLAP_M * direction, points[last + 1] + _ROAD_OVERLAP_M * direction
+
+    pieces = [_surface_quad(*chord_ends(index, index), lateral_from, lateral_to, z, road) for index in range(count)]
+    across = np.linspace(0.0, 1.0, 4)
+    quads = []
+    first = 0
+    while first < count:
+        best, best_quad = first, pieces[first]
+        for last in range(first + 1, min(first + _MERGE_PIECES, count)):
+            start, end = chord_ends(first, last)
+            direction = (end - start) / np.linalg.norm(end - start)
+            offsets = points[first:last + 2] - start
+            if np.max(np.abs(offsets[:, 0] * direction[1] - offsets[:, 1] * direction[0])) > _MERGE_PLAN_M:
+                break
+            candidate = _surface_quad(start, end, lateral_from, lateral_to, z, road)
+            worst = 0.0
+            for index in range(first, last + 1):
+                origin, axis_u, axis_v, width, height = pieces[index]
+                xy = origin[:2] + (across[:, None, None] * width * axis_u[:2] + across[None, :, None] * height * axis_v[:2]).reshape(-1, 2)
+                worst = max(worst, float(np.max(np.abs(_plane_height(candidate[0], candidate[1], candidate[2], xy)
+                                                       - _plane_height(origin, axis_u, axis_v, xy)))))
+            if worst > _MERGE_HEIGHT_M:
+                break
+            best, best_quad = last, candidate
+        origin, axis_u, axis_v, width, height = best_quad
+        quads.append(Quad(origin, axis_u, axis_v, width, height, kind, texture, texture_scale))
+        first = best + 1
+    return quads
 
 
 def _clear(points_2d: np.ndarray, tree, clearance: float) -> bool:

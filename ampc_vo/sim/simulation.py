@@ -1,10 +1,12 @@
 """Simulated landmarks and feature tracks with ground truth (DESIGN section 6; issue 2).
 
-Pipeline of :func:`simulate_dataset`: route config -> kinematics (``kinematics.simulate_kinematics``)
--> procedural scene (``scene.build_scene``) -> landmarks sampled **on the scene's quads** (so that
-rendered images and bearing measurements show the same world) -> per camera and frame visibility
--> tracks with pixel noise and outliers -> dataset folder (``ampc_vo.io.folder``) and, when the
-renderer is available, images.
+Pipeline of :func:`simulate_dataset`: route config -> true motion (:func:`simulate_truth`: planar
+kinematics ``kinematics.simulate_kinematics`` at >= 200 Hz, the road surface ``road``, 6-DoF poses on
+it ``attitude.poses_on_road``; the camera frames are every k-th dense sample) -> procedural scene
+(``scene.build_scene``, on the road) -> landmarks sampled **on the scene's quads** (so that
+rendered images and bearing measurements show the same world; ground points on the road surface)
+-> per camera and frame visibility -> tracks with pixel noise and outliers -> dataset folder
+(``ampc_vo.io.folder``) and, when the renderer is available, images.
 
 Visibility of a landmark in a camera at a frame (all vectorised over landmarks):
 
@@ -40,7 +42,7 @@ from scipy.spatial import cKDTree
 from ampc_vo.errors import ConfigError, OutputError
 from ampc_vo.geometry import invert_pose
 from ampc_vo.io.groundtruth import Trajectory
-from ampc_vo.sim.attitude import BodyAngles, poses_on_road
+from ampc_vo.sim.attitude import BodyAngles, mount_vibration, poses_on_road
 from ampc_vo.sim.kinematics import AxleGroup, simulate_kinematics
 from ampc_vo.sim.road import FLAT_ROAD, RoadSurface
 from ampc_vo.io.measurements import MEASUREMENTS_FILE, Measurements, load_measurements, save_measurements
@@ -447,6 +449,9 @@ class SimulationResult:
     body_angles: BodyAngles | None = None
     capture_times: dict[str, np.ndarray] | None = None  # per camera (F,) seconds (``camera_timing.capture_times``)
     dynamic: "DynamicScene | None" = None                # traffic and the trailer box (``sim.traffic``)
+    # per camera name, (N_dense, 3, 3) vibration of its mount over dense_trajectory's samples
+    # (``T_body_camera @ R_mount``; attitude.mount_vibration), for the camera side to apply
+    mount_vibration: dict[str, np.ndarray] | None = None
 
 
 def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> SimulationResult:
@@ -467,8 +472,9 @@ def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> S
                                   config.scene.landmark_density_facade, np.random.default_rng([config.seed, 17]),
                                   pose_trajectory=dense, road=None if road.is_flat else road)
     measurements = simulate_measurements(trajectory, rig, landmarks, scene, config, rng, capture_times, pose_trajectory=dense, dynamic=dynamic)
+    mounts = mount_vibration(rig, dense, config.vehicle, np.random.default_rng([config.seed, 23])) if config.vehicle.moves_bodies else None
     return SimulationResult(config, rig, trajectory, scene, landmarks, measurements, dense_trajectory=dense, road=road, body_angles=angles,
-                            capture_times=capture_times, dynamic=dynamic)
+                            capture_times=capture_times, dynamic=dynamic, mount_vibration=mounts)
 
 
 def dense_factor(config: SimulationConfig) -> int:
@@ -495,7 +501,8 @@ def simulate_truth(config: SimulationConfig, rig: Rig) -> tuple[Trajectory, Road
     tilted = road_config.has_profile or road_config.plane_slope != (0.0, 0.0)
     planar = simulate_kinematics(config.route, config.rate_hz, tractor_axle_x, trailer_axle_x, config.initial_hitch_angle, config.duration,
                                  slip=config.tyre_slip, samples_per_frame=dense_factor(config), axle_group=group,
-                                 lateral_slope=road_config.lane_slope(config.route.curvature) if tilted and config.tyre_slip > 0.0 else None)
+                                 lateral_slope=road_config.lane_slope(config.route.design_curvature, config.route.lane_change_offset)
+                                 if tilted and config.tyre_slip > 0.0 else None)
     if not tilted and not road_config.bumps:
         road = FLAT_ROAD
     else:

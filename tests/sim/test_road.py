@@ -78,3 +78,15 @@ def test_lane_change_does_not_move_the_road():
                              {"type": "straight", "length": 40}], 20.0, "test")
     path, station, _ = route.design_path((0.0, 0.0), 10.0)
     assert np.allclose(path[:, 1], 0.0, atol=1e-9) and path[-1, 0] == pytest.approx(station[-1], abs=1e-9)
+
+
+def test_lane_slope_follows_the_lane_across_the_crown_after_a_lane_change():
+    route = route_from_list([{"type": "straight", "length": 40}, {"type": "lane_change", "length": 100, "offset": 3.5},
+                             {"type": "straight", "length": 40}], 20.0, "test")
+    slope = RoadConfig(crown=0.025, lane_offset_m=1.75).lane_slope(route.design_curvature, route.lane_change_offset)
+    assert slope(20.0, 0.0) == pytest.approx(0.025)     # right lane: the road rises to the left, towards the crown
+    assert slope(160.0, 0.0) == pytest.approx(-0.025)   # left lane after the change: it falls to the left
+    assert route.lane_change_offset(160.0) == pytest.approx(3.5) and route.lane_change_offset(90.0) == pytest.approx(1.75)
+    assert route.design_curvature(60.0) == 0.0 and route.curvature(60.0) != 0.0
+    plane = RoadConfig(plane_slope=(0.0, -0.01)).lane_slope(route.design_curvature)
+    assert plane(0.0, 0.0) == pytest.approx(-0.01) and plane(0.0, math.pi / 2.0) == pytest.approx(0.0, abs=1e-12)

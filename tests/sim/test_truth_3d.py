@@ -3,6 +3,7 @@ finite differences of the dense poses, body-frame contact points against the roa
 hitch angle from the rotations, accelerations against the configured limits."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -97,10 +98,37 @@ def test_without_slip_each_axle_has_no_lateral_velocity(rigid_hill):
         assert np.abs(longitudinal).max() > 7.0
 
 
-def test_with_slip_the_trailer_axle_does_slide(moving_hill):
-    _, rig, dense, _, _ = moving_hill
+def _steady_turn(dense) -> np.ndarray:
+    """Samples in the middle of HILL_ROUTE's constant-radius arc (R 45 m at 8 m/s)."""
+    arc_start = 45.0 + 10.0
+    arc_length = 45.0 * math.radians(50.0) - 20.0
+    return (dense.arc_length > arc_start + 0.3 * arc_length) & (dense.arc_length < arc_start + 0.7 * arc_length)
+
+
+def test_tyre_slip_and_cross_slope_drift_move_the_tractor_axle_sideways():
+    """Linear tyre: the axle's velocity points outward by slip * (v^2 kappa + g dh/dn); on this banked
+    left curve (AASHTO method 1: e = e_max min(R_min / R, 1)) the bank's gravity offsets part of it."""
+    config, rig, dense, _, _ = _world(HILL_ROUTE, road=HILL, slip=0.15)
+    steady = _steady_turn(dense)
+    longitudinal, lateral = _axle_velocity(dense, "tractor", rig.axle_x("tractor"))
+    minimum_radius = 10.0**2 / (9.81 * (0.06 + 0.15))
+    bank = 0.06 * min(minimum_radius / 45.0, 1.0)
+    force = 8.0**2 / 45.0 - 9.81 * bank                 # dh/dn = -e in the right lane of a left curve
+    expected = -8.0 * math.radians(0.15) * force
+    assert np.median(lateral[steady]) == pytest.approx(expected, rel=0.1)
+
+
+def test_tridem_slides_about_its_effective_axle():
+    """Without slip the tridem's centre (the rig's axle_x) moves sideways at psi_B' (L_eq - L) with
+    Winkler's L_eq = L + sum(x_i^2) / (n L) (gentle turn)."""
+    config, rig, dense, _, _ = _world(HILL_ROUTE, road=HILL, vehicle={"trailer_axles": 3})
+    steady = _steady_turn(dense)
     _, lateral = _axle_velocity(dense, "trailer", rig.axle_x("trailer"))
-    assert np.abs(lateral).max() > 0.02  # slip, cross-slope drift and the tridem's effective axle
+    yaw_rate = np.gradient(np.unwrap(np.arctan2(dense.T_world_trailer[:, 1, 0], dense.T_world_trailer[:, 0, 0])), dense.timestamps)
+    distance = -rig.axle_x("trailer")
+    shift = 2 * 1.31**2 / (3 * distance)
+    assert np.median(np.abs(lateral[steady])) == pytest.approx(np.median(np.abs(yaw_rate[steady])) * shift, rel=0.1)
+    assert np.median(np.abs(lateral[steady])) > 0.008  # a single axle: < 1e-3 here (test above)
 
 
 def test_hitch_angle_is_the_yaw_of_R_tractor_trailer(moving_hill):
@@ -138,11 +166,12 @@ def test_standing_start_and_end_at_rest(rigid_hill):
 
 
 def test_dense_trajectory_holds_the_camera_frames(moving_hill):
-    config, rig, dense, _, _ = moving_hill
+    config, rig, _, _, _ = moving_hill
+    result = simulate(dataclasses.replace(config, duration=4.0), rig)   # up the hill (measurements cost time)
+    dense, frames = result.dense_trajectory, result.trajectory
     step = dense_factor(config)
-    assert 1.0 / np.median(np.diff(dense.timestamps)) >= 200.0 - 1e-6
-    result = simulate(config, rig)
-    frames = result.trajectory
+    assert step == 20 and 1.0 / np.median(np.diff(dense.timestamps)) >= 200.0 - 1e-6
+    assert len(frames) == 41 and len(dense) == 40 * step + 1
     assert np.allclose(frames.timestamps, dense.timestamps[::step])
     assert np.array_equal(frames.T_world_tractor, result.dense_trajectory.T_world_tractor[::step])
     assert np.allclose(np.diff(frames.timestamps), 0.1)
@@ -235,3 +264,23 @@ def test_axle_group_effective_distance_matches_winkler_for_gentle_turns():
     moved = tridem.effective_distance(distance, np.array([1e-3, 0.1, 0.2]))
     assert np.ptp(moved) > 0.01  # the effective axle moves with the turn radius
     assert AxleGroup(1).effective_distance(distance, 0.1)[0] == distance
+
+
+def test_camera_mounts_vibrate_with_speed_and_the_engine():
+    from ampc_vo.sim.attitude import VehicleConfig, mount_vibration
+
+    config, rig, dense, _, _ = _world(HILL_ROUTE, road=HILL)
+    vehicle = VehicleConfig(engine_deg=0.02, mount_deg_per_mps=0.004)
+    mounts = mount_vibration(rig, dense, vehicle, np.random.default_rng(3))
+    assert set(mounts) == set(rig.camera_names)
+    moving = np.abs(dense.speed) > 7.0
+    standing = dense.speed == 0.0
+    for camera in rig.cameras:
+        rotation = mounts[camera.name]
+        angle = np.degrees(np.arccos(np.clip((np.trace(rotation, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
+        # RMS per axis 0.004 deg per m/s: ~0.03 deg per axis at 7-8 m/s, sqrt(3) of it in total
+        assert 0.02 < np.sqrt(np.mean(angle[moving] ** 2)) < 0.12, camera.name
+        if camera.body == "tractor":   # idling engine shakes the cab mounts at standstill
+            assert 0.003 < angle[standing].max() < 0.03
+        else:
+            assert angle[standing].max() < 1e-6
