@@ -71,6 +71,10 @@ class RenderOptions:
     sky_horizon: float = 235.0        # grey level of the sky at the horizon
     shading: bool = True              # per-quad brightness from a sun direction and albedo jitter
     road_markings: bool = True
+    road_texture: str = ""            # texture of the road surface instead of the scene's (e.g. worn_asphalt)
+    grass_texture: str = ""           # texture of the scene's grass beside the road (e.g. verge)
+    shadows: bool = False             # cast shadows of walls and boxes on the ground (sun: _SUN_DIRECTION)
+    shadow_darkness: float = 0.5      # brightness of the ground in shadow (sky light only)
     sensor_noise_sigma: float = 0.0
     exposure_variation: float = 0.0
     motion_blur_samples: int = 1
@@ -198,6 +202,7 @@ class PreparedQuads:
     texture_index: np.ndarray    # (Q,) int into the atlas
     gain: np.ndarray        # (Q,) brightness factor
     road: np.ndarray        # (Q,) bool: paint lane markings
+    horizontal: np.ndarray  # (Q,) bool: texture mapped from world (x, y); receives cast shadows
     parent_height: np.ndarray    # (Q,) m: road width across (parent quad's height)
     centre: np.ndarray      # (Q, 3) bounding sphere
     radius: np.ndarray      # (Q,)
@@ -297,6 +302,10 @@ def prepare_quads(quads: Sequence[Quad], atlas: TextureAtlas, options: RenderOpt
     columns: dict[str, list] = {name: [] for name in PreparedQuads.__dataclass_fields__}
     road_offsets = _road_chain_offsets(quads)
     for parent_index, quad in enumerate(quads):
+        if quad.kind == "road" and options.road_texture:
+            quad = dataclasses.replace(quad, texture=options.road_texture)
+        elif quad.texture == "grass" and options.grass_texture:
+            quad = dataclasses.replace(quad, texture=options.grass_texture)
         if quad.texture not in atlas.names:
             raise ConfigError(f"quad {parent_index} ({quad.kind}): texture {quad.texture!r} not in the atlas {atlas.names}")
         if quad.texture_scale <= 0 or quad.width <= 0 or quad.height <= 0:
@@ -342,17 +351,67 @@ def prepare_quads(quads: Sequence[Quad], atlas: TextureAtlas, options: RenderOpt
                 columns["texture_index"].append(atlas.index(quad.texture))
                 columns["gain"].append(gain)
                 columns["road"].append(quad.kind == "road" and options.road_markings)
+                columns["horizontal"].append(horizontal)
                 columns["parent_height"].append(quad.height)
                 columns["centre"].append(piece_origin + 0.5 * piece_w * axis_u + 0.5 * piece_h * axis_v)
                 columns["radius"].append(0.5 * math.hypot(piece_w, piece_h))
     if not columns["width"]:
         empty = {name: np.zeros((0, 3)) for name in ("origin", "axis_u", "axis_v", "normal", "centre")}
         empty.update({name: np.zeros(0) for name in ("width", "height", "offset_a", "offset_b", "road_along", "texture_scale", "gain", "parent_height", "radius")})
-        return PreparedQuads(**empty, texture_map=np.zeros((0, 2, 3)), texture_index=np.zeros(0, np.int64), road=np.zeros(0, bool))
+        return PreparedQuads(**empty, texture_map=np.zeros((0, 2, 3)), texture_index=np.zeros(0, np.int64), road=np.zeros(0, bool),
+                             horizontal=np.zeros(0, bool))
     arrays = {name: np.asarray(values) for name, values in columns.items()}
     arrays["texture_index"] = arrays["texture_index"].astype(np.int64)
     arrays["road"] = arrays["road"].astype(bool)
     return PreparedQuads(**arrays)
+
+
+@dataclass(frozen=True)
+class ShadowMap:
+    """Where the ground (z = 0) is lit: ``lit`` (H, W) float32 in [0, 1] on a grid of ``resolution``
+    metres from world ``origin`` (x, y) (row = y, column = x)."""
+
+    origin: np.ndarray
+    resolution: float
+    lit: np.ndarray
+
+    def sample(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Bilinear lit fraction at world points (outside the map: lit)."""
+        map_x = ((x - np.float32(self.origin[0])) / np.float32(self.resolution)).astype(np.float32)
+        map_y = ((y - np.float32(self.origin[1])) / np.float32(self.resolution)).astype(np.float32)
+        lit = cv2.remap(self.lit, map_x.reshape(map_x.shape[0], -1), map_y.reshape(map_y.shape[0], -1), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=1.0)
+        return lit.reshape(np.shape(x))
+
+
+_SHADOW_CASTERS = ("facade", "box", "pole")
+_MAX_SHADOW_SIDE = 4096
+
+
+def shadow_map(quads: Sequence[Quad], sun: np.ndarray, resolution: float = 0.2) -> ShadowMap | None:
+    """Cast shadows of walls, boxes and poles on the ground plane z = 0 (a parallel projection along
+    the sun direction: each quad's shadow is the convex polygon of its corners moved by
+    ``-z / sun_z * sun``), rasterised anti-aliased and softened by about one cell (penumbra).
+    Horizontal surfaces at other heights get the z = 0 shadows (exact for a flat world)."""
+    sun = np.asarray(sun, float) / np.linalg.norm(sun)
+    ground = [quad for quad in quads if quad.kind in ("road", "ground")]
+    casters = [quad for quad in quads if quad.kind in _SHADOW_CASTERS]
+    if not ground or not casters or sun[2] <= 0.05:
+        return None
+    corners = np.array([[q.origin, q.origin + q.width * q.axis_u, q.origin + q.width * q.axis_u + q.height * q.axis_v, q.origin + q.height * q.axis_v]
+                        for q in casters])                                         # (C, 4, 3)
+    shadows = corners[..., :2] - (np.maximum(corners[..., 2:3], 0.0) / sun[2]) * sun[:2]
+    extent = np.array([[q.origin, q.origin + q.width * q.axis_u + q.height * q.axis_v] for q in ground]).reshape(-1, 3)[:, :2]
+    low, high = extent.min(axis=0), extent.max(axis=0)
+    resolution = max(resolution, float(np.max(high - low)) / _MAX_SHADOW_SIDE)
+    size = np.ceil((high - low) / resolution).astype(int) + 2
+    shade = np.zeros((size[1], size[0]), np.uint8)
+    scale = 16  # cv2 sub-pixel shift: 4 fractional bits
+    for polygon in shadows:
+        points = np.round((polygon - low) / resolution * scale).astype(np.int32)
+        cv2.fillConvexPoly(shade, cv2.convexHull(points), 255, lineType=cv2.LINE_AA, shift=4)
+    lit = 1.0 - cv2.GaussianBlur(shade.astype(np.float32) / 255.0, (0, 0), 0.7)
+    return ShadowMap(low, resolution, lit.astype(np.float32))
 
 
 def _concat_prepared(first: PreparedQuads, second: PreparedQuads) -> PreparedQuads:
@@ -409,6 +468,7 @@ class Renderer:
             textures = load_textures(seed=self.options.seed)
         self.atlas = textures if isinstance(textures, TextureAtlas) else build_atlas(textures)
         self.quads = prepare_quads(merge_collinear_strips(scene.quads), self.atlas, self.options)
+        self.shadows = shadow_map(scene.quads, _SUN_DIRECTION) if self.options.shadows else None
         self._rays: dict[tuple, CameraRays] = {}
         self.last_stats: dict[str, int] = {}  # work of the last depth pass (candidates, quads and ray tests)
 
@@ -651,8 +711,8 @@ class Renderer:
             t = visible.depth
             # Per-quad constants, gathered per pixel in one call (contiguous planes).
             constants = np.take(np.stack([atlas.size / quads.texture_scale, atlas.level_x[quads.texture_index] + (atlas.pad - 0.5),
-                                          quads.gain, quads.road, quads.road_along, quads.parent_height]).astype(np.float32), q, axis=1)
-            texels_per_m, texture_x, gain, road_flag, road_along, road_width = constants
+                                          quads.gain, quads.road, quads.road_along, quads.parent_height, quads.horizontal]).astype(np.float32), q, axis=1)
+            texels_per_m, texture_x, gain, road_flag, road_along, road_width, horizontal = constants
             incidence = np.maximum(visible.cos_incidence, np.float32(0.02))
             incidence = np.sqrt(incidence) if options.incidence_exponent == 0.5 else incidence ** np.float32(options.incidence_exponent)
             pixel_m = t * rays.pixel_angle[first:stop]
@@ -688,6 +748,10 @@ class Renderer:
                 along = visible.coord_a.ravel()[road] + road_along.ravel()[road]
                 surface.ravel()[road] = _paint_markings(surface.ravel()[road], along, visible.coord_b.ravel()[road],
                                                         road_width.ravel()[road], pixel_m.ravel()[road], footprint_m.ravel()[road])
+            if self.shadows is not None:  # horizontal quads: texture coordinates are world (x, y)
+                lit = self.shadows.sample(visible.texture_s, visible.texture_t)
+                shade = np.float32(options.shadow_darkness) + np.float32(1.0 - options.shadow_darkness) * lit
+                surface *= np.where(horizontal > 0, shade, np.float32(1.0))
             image = surface
         sky = ~hit
         if sky.any():  # brighter towards the horizon

@@ -237,3 +237,44 @@ def test_traffic_and_trailer_sections_are_validated(repo_root):
                            ({"cameras": {"all": {"jitter_ms": "x"}}}, "jitter_ms")):
         with pytest.raises(ConfigError, match=message):
             sim_config_from_dict({**base, **extra}, repo_root / "configs" / "sim" / "x.yaml")
+
+
+def test_walls_cast_shadows_of_the_right_length_on_the_ground():
+    from ampc_vo.sim.render import shadow_map
+
+    sun = np.array([0.6, 0.0, 0.8])                    # elevation atan(0.8 / 0.6): shadow length = h * 0.75
+    wall = Quad(np.array([0.0, -5.0, 0.0]), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), 10.0, 8.0, "facade", "concrete")
+    ground = Quad(np.array([-20.0, -20.0, 0.0]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 40.0, 40.0, "ground", "grass")
+    shadows = shadow_map([ground, wall], sun, resolution=0.1)
+    x = np.array([-1.0, -5.5, -6.5, 1.0, -3.0, -3.0], np.float32)   # shadow reaches x = -6 (away from the sun)
+    y = np.array([0.0, 0.0, 0.0, 0.0, 4.0, 6.0], np.float32)
+    lit = shadows.sample(x, y)
+    np.testing.assert_allclose(lit, [0.0, 0.0, 1.0, 1.0, 0.0, 1.0], atol=0.02)
+
+
+def test_shadowed_ground_renders_darker(default_rig, atlas):
+    from ampc_vo.sim.render import RenderOptions
+
+    camera = default_rig.camera("front")
+    ground = Quad(np.array([-20.0, -20.0, 0.0]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 80.0, 40.0, "road", "asphalt", 4.0)
+    wall = Quad(np.array([14.0, 30.0, 0.0]), np.array([0.0, -1.0, 0.0]), np.array([0.0, 0.0, 1.0]), 60.0, 30.0, "facade", "concrete")
+    T = planar_pose(0.0, 0.0, 0.0) @ camera.T_body_camera
+    images = {}
+    for shadows in (False, True):
+        options = RenderOptions(shadows=shadows, shadow_darkness=0.4, road_markings=False)
+        images[shadows], depth = Renderer(Scene((ground, wall)), atlas, options).radiance_and_depth(camera, T)
+    ratio = images[True] / np.maximum(images[False], 1e-3)
+    road = np.isfinite(depth) & (np.abs(ratio - 1.0) > 1e-3)
+    assert road.sum() > 1000 and np.median(ratio[road]) == pytest.approx(0.4, abs=0.02)
+
+
+def test_worn_asphalt_has_little_texture_but_some_features():
+    from ampc_vo.sim.textures import make_texture
+
+    worn = make_texture("worn_asphalt").astype(np.float32) / 255
+    textured = make_texture("asphalt").astype(np.float32) / 255
+    coarse = lambda image: cv2.resize(image, (64, 64), interpolation=cv2.INTER_AREA)  # noqa: E731 - seen from metres away
+    assert coarse(worn).std() < 0.4 * coarse(textured).std()
+    assert 0.25 < worn.mean() < 0.4
+    corners = cv2.goodFeaturesToTrack(worn, 500, 0.05, 5)
+    assert corners is not None and 5 <= len(corners) < 0.5 * len(cv2.goodFeaturesToTrack(textured, 500, 0.05, 5))
