@@ -317,7 +317,8 @@ def prepare_quads(quads: Sequence[Quad], atlas: TextureAtlas, options: RenderOpt
         axis_v = np.asarray(quad.axis_v, float)
         origin = np.asarray(quad.origin, float)
         normal = np.cross(axis_u, axis_v)
-        horizontal = abs(normal[2]) > 0.9 and quad.kind != "marker"
+        # Boxes (vehicles, the trailer) keep surface coordinates on their roofs too: they may move.
+        horizontal = abs(normal[2]) > 0.9 and quad.kind not in ("marker", "box")
         if horizontal:
             texture_map = np.array([[axis_u[0], axis_v[0], origin[0]], [axis_u[1], axis_v[1], origin[1]]])
         elif quad.kind == "marker":
@@ -418,6 +419,15 @@ def _concat_prepared(first: PreparedQuads, second: PreparedQuads) -> PreparedQua
     return PreparedQuads(**{name: np.concatenate([getattr(first, name), getattr(second, name)]) for name in PreparedQuads.__dataclass_fields__})
 
 
+def move_prepared(quads: PreparedQuads, T_world_body: np.ndarray) -> PreparedQuads:
+    """Quads prepared in a body frame, moved rigidly to ``T_world_body``: geometry changes, texture
+    coordinates (surface coordinates of non-horizontal quads) and shading stay, so a moving body's
+    texture moves with it."""
+    R, p = T_world_body[:3, :3], T_world_body[:3, 3]
+    return dataclasses.replace(quads, origin=quads.origin @ R.T + p, axis_u=quads.axis_u @ R.T, axis_v=quads.axis_v @ R.T,
+                               normal=quads.normal @ R.T, centre=quads.centre @ R.T + p)
+
+
 def _paint_markings(surface: np.ndarray, along: np.ndarray, across: np.ndarray, road_width: np.ndarray,
                     footprint_across: np.ndarray, footprint_along: np.ndarray) -> np.ndarray:
     """Lane paint in road coordinates (m): solid edge lines 0.35 m inside both edges (0.15 m wide)
@@ -470,6 +480,7 @@ class Renderer:
         self.quads = prepare_quads(merge_collinear_strips(scene.quads), self.atlas, self.options)
         self.shadows = shadow_map(scene.quads, _SUN_DIRECTION) if self.options.shadows else None
         self._rays: dict[tuple, CameraRays] = {}
+        self._bodies: dict[tuple, tuple] = {}  # moving bodies' faces prepared in their own frames
         self.last_stats: dict[str, int] = {}  # work of the last depth pass (candidates, quads and ray tests)
 
     def rays_of(self, camera: Camera) -> CameraRays:
@@ -689,8 +700,24 @@ class Renderer:
         return self._render_float_and_depth(camera, T_world_camera, extra_quads)
 
     def prepare_extra(self, extra_quads: Sequence[Quad]) -> PreparedQuads | None:
-        """Extra per-frame quads (traffic, the trailer body) prepared once for several bands."""
+        """Extra per-frame quads prepared for :meth:`radiance_and_depth`."""
         return prepare_quads(extra_quads, self.atlas, self.options, seed_offset=10**6) if len(extra_quads) else None
+
+    def moving_bodies(self, dynamic: Any, time: float, camera: Camera) -> PreparedQuads | None:
+        """The faces of the moving bodies ``camera`` sees at ``time`` (``traffic.DynamicScene``),
+        prepared once per body in its own frame and moved to its pose (the texture sticks to the body)."""
+        moved = []
+        for body in dynamic.visible_bodies(camera):
+            key = (id(dynamic), body)
+            if key not in self._bodies:  # the scene is kept with its entry: its id cannot be reused
+                self._bodies[key] = (dynamic, prepare_quads(dynamic.faces[body], self.atlas, self.options, seed_offset=10**6 + body))
+            moved.append(move_prepared(self._bodies[key][1], dynamic.poses(body, np.array([time]))[0]))
+        if not moved:
+            return None
+        result = moved[0]
+        for other in moved[1:]:
+            result = _concat_prepared(result, other)
+        return result
 
     def _render_float_and_depth(self, camera: Camera, T_world_camera: np.ndarray,
                                 extra_quads: Sequence[Quad] | PreparedQuads | None, rows: tuple[int, int] | None = None,
@@ -843,13 +870,17 @@ def _camera_pose_at(job: SequenceJob, camera: Camera):
     return pose_at
 
 
-def _extra_quads(renderer: Renderer, job: SequenceJob, camera: Camera, time: float) -> list[Quad]:
-    extra: list[Quad] = []
+def _extra_quads(renderer: Renderer, job: SequenceJob, camera: Camera, time: float) -> PreparedQuads | None:
+    """Prepared moving quads at ``time``: the render options' moving vehicle and the job's moving bodies."""
+    parts = []
     if renderer.options.moving_vehicle:
-        extra += vehicle_quads(vehicle_pose(job.trajectory, time, renderer.options))
+        parts.append(renderer.prepare_extra(vehicle_quads(vehicle_pose(job.trajectory, time, renderer.options))))
     if job.dynamic_scene is not None:
-        extra += job.dynamic_scene.quads_at(time, camera)
-    return extra
+        parts.append(renderer.moving_bodies(job.dynamic_scene, time, camera))
+    parts = [part for part in parts if part is not None]
+    if not parts:
+        return None
+    return parts[0] if len(parts) == 1 else _concat_prepared(parts[0], parts[1])
 
 
 def render_frame_images(renderer: Renderer, job: SequenceJob, frame: int) -> dict[str, np.ndarray]:
@@ -901,10 +932,29 @@ def image_paths(rig: Rig, frame: int) -> list[str]:
 _METER_SCALE = 8  # the auto-exposure meter renders at 1/8 of the resolution
 
 
+_METER_INTERVAL_S = 0.2
+
+
+def _meter_frames(times: np.ndarray) -> np.ndarray:
+    """Indices of the frames the auto-exposure meter renders: the first, then each frame at least
+    ``_METER_INTERVAL_S`` after the previous metered one, and the last."""
+    if len(times) == 0:
+        return np.zeros(0, np.int64)
+    chosen, last = [], -np.inf
+    for index, time in enumerate(times):
+        if time - last >= _METER_INTERVAL_S - 1e-9:
+            chosen.append(index)
+            last = time
+    if chosen[-1] != len(times) - 1:
+        chosen.append(len(times) - 1)
+    return np.array(chosen, np.int64)
+
+
 def metered_amplification(renderer: Renderer, job: SequenceJob) -> dict[str, np.ndarray]:
     """Per camera (F,) exposure x gain from auto exposure (``camera_effects.auto_exposure``): the
-    brightness of each frame is metered on a 1/8-resolution rendering at the middle of the readout
-    (with vignetting), in frame order (the loop reacts to the previous frame)."""
+    brightness is metered on 1/8-resolution renderings at the middle of the readout (with
+    vignetting) every ``_METER_INTERVAL_S`` (interpolated between; the loop's time constant is longer),
+    in frame order (the loop reacts to the previous frame)."""
     from ampc_vo.rig import replace_camera
     from ampc_vo.sim.camera_effects import auto_exposure, vignetting_factor
 
@@ -919,10 +969,12 @@ def metered_amplification(renderer: Renderer, job: SequenceJob) -> dict[str, np.
                                fx=camera.fx / scale, fy=camera.fy / scale, cx=(camera.cx + 0.5) / scale - 0.5, cy=(camera.cy + 0.5) / scale - 0.5)
         meter = vignetting_factor(renderer.rays_of(small).rays_planes[2], settings.vignetting)
         times = np.asarray(job.capture_times[camera.name], float) + 0.5 * camera.readout_time
-        poses = _camera_pose_at(job, camera)(times)
+        # Metered at most every _METER_INTERVAL_S (the loop's lag is longer), linear in time between.
+        metered = _meter_frames(times)
+        poses = _camera_pose_at(job, camera)(times[metered])
         brightness = np.array([float(np.mean(renderer.render_float(small, pose, _extra_quads(renderer, job, camera, float(time))) * meter))
-                               for pose, time in zip(poses, times)])
-        result[camera.name] = auto_exposure(brightness, times, settings)
+                               for pose, time in zip(poses, times[metered])])
+        result[camera.name] = auto_exposure(np.interp(times, times[metered], brightness), times, settings)
     return result
 
 

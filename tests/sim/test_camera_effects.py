@@ -278,3 +278,54 @@ def test_worn_asphalt_has_little_texture_but_some_features():
     assert 0.25 < worn.mean() < 0.4
     corners = cv2.goodFeaturesToTrack(worn, 500, 0.05, 5)
     assert corners is not None and 5 <= len(corners) < 0.5 * len(cv2.goodFeaturesToTrack(textured, 500, 0.05, 5))
+
+
+def test_auto_exposure_in_rendered_sequences_brings_a_dark_view_to_the_target(default_rig, atlas, tmp_path):
+    """Frames 0-9 look at a bright wall, then at a dark one: the first dark frames come out dark,
+    then the exposure loop brings the image mean to the target grey (metered on the renderings)."""
+    from ampc_vo.sim.render import RenderOptions
+
+    camera = replace_camera(default_rig.camera("front"), width=160, height=120, fx=80.0, fy=80.0, cx=79.5, cy=59.5)
+    rig = Rig(default_rig.bodies, (camera,))
+    count = 30
+    forward = camera.T_body_camera[:3, 2]
+    scene_quads = []
+    for offset, texture in ((0.0, "paint"), (1000.0, "asphalt")):
+        centre = np.array([offset, 0.0, 0.0]) + camera.T_body_camera[:3, 3] + 4.0 * forward
+        scene_quads.append(dataclasses_replace(_marker(centre, -forward, size=30.0), texture=texture, kind="facade", texture_scale=2.0))
+    tractor = np.stack([planar_pose(0.0 if k < 10 else 1000.0, 0.0, 0.0) for k in range(count)])
+    trajectory = Trajectory(np.arange(count) * 0.1, tractor, tractor.copy(), np.zeros(count))
+    settings = CameraSettingsTable(CameraSettings(auto_exposure=True, target_grey=110.0, exposure_time_constant_s=0.3, max_gain=8.0))
+    options = RenderOptions(processes=1, shading=False, sky_zenith=0.0, sky_horizon=0.0)
+    scene = Scene(tuple(scene_quads))
+    render_sequence(tmp_path, rig, trajectory, scene, options, progress=False, renderer=Renderer(scene, atlas, options), camera_settings=settings)
+    means = [cv2.imread(str(tmp_path / "images" / "front" / f"{k:06d}.png"), cv2.IMREAD_GRAYSCALE).mean() for k in range(count)]
+    assert means[5] == pytest.approx(110.0, rel=0.05)                 # converged on the bright wall
+    assert means[10] < 0.6 * 110.0                                    # the first dark frame: still the bright exposure
+    assert means[11] < means[13] < means[16]                          # recovering with the loop's lag
+    assert means[-1] == pytest.approx(110.0, rel=0.05)
+
+
+def dataclasses_replace(quad: Quad, **changes) -> Quad:
+    """A copy of a quad with some fields changed."""
+    import dataclasses
+
+    return dataclasses.replace(quad, **changes)
+
+
+def test_moving_body_textures_stick_to_the_body(default_rig, atlas):
+    """A box seen from the same relative pose at two places looks the same (texture moves with it)."""
+    from ampc_vo.sim.render import move_prepared, prepare_quads, RenderOptions
+    from ampc_vo.sim.traffic import box_faces
+
+    camera = default_rig.camera("front")
+    renderer = Renderer(Scene(()), atlas, RenderOptions(shading=True))
+    faces = prepare_quads(box_faces(4.5, 1.8, 1.5, "metal"), atlas, renderer.options, seed_offset=10**6)
+    images = []
+    for x, yaw in ((12.0, 0.0), (40.0, 0.7)):
+        T_world_box = planar_pose(x, 2.0, yaw)
+        T_world_camera = T_world_box @ np.linalg.inv(planar_pose(10.0, -1.0, 0.2)) @ camera.T_body_camera
+        images.append(renderer.radiance_and_depth(camera, T_world_camera, move_prepared(faces, T_world_box))[0])
+    hit = images[0] != images[0][0, 0]
+    assert hit.sum() > 2000
+    np.testing.assert_allclose(images[0][hit], images[1][hit], atol=0.05)
