@@ -883,6 +883,16 @@ def _extra_quads(renderer: Renderer, job: SequenceJob, camera: Camera, time: flo
     return parts[0] if len(parts) == 1 else _concat_prepared(parts[0], parts[1])
 
 
+def padded_camera(camera: Camera, margin: int) -> Camera:
+    """The camera with ``margin`` more pixels on every side (same model, principal point shifted)."""
+    if margin <= 0:
+        return camera
+    from ampc_vo.rig import replace_camera
+
+    return replace_camera(camera, width=camera.width + 2 * margin, height=camera.height + 2 * margin,
+                          cx=camera.cx + margin, cy=camera.cy + margin)
+
+
 def render_frame_images(renderer: Renderer, job: SequenceJob, frame: int) -> dict[str, np.ndarray]:
     """uint8 images of every rig camera at one frame of a :class:`SequenceJob` (``camera_effects.form_image``
     with the camera's capture time, settings and metered exposure, then the render options' effects)."""
@@ -895,15 +905,15 @@ def render_frame_images(renderer: Renderer, job: SequenceJob, frame: int) -> dic
         settings = job.settings[camera_index]
         capture = float(job.capture_times[camera.name][frame])
 
-        def render_with_depth(T_world_camera: np.ndarray, time: float, camera=camera) -> tuple[np.ndarray, np.ndarray]:
-            return renderer.radiance_and_depth(camera, T_world_camera, _extra_quads(renderer, job, camera, time))
+        def render_with_depth(T_world_camera: np.ndarray, time: float, margin: int, camera=camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            padded = padded_camera(camera, margin)
+            radiance, depth = renderer.radiance_and_depth(padded, T_world_camera, _extra_quads(renderer, job, camera, time))
+            return radiance, depth, renderer.rays_of(padded).rays_planes
 
-        rays = renderer.rays_of(camera).rays_planes
-        vignetting = vignetting_factor(rays[2], settings.vignetting) if settings.vignetting > 0 else None
+        vignetting = vignetting_factor(renderer.rays_of(camera).rays_planes[2], settings.vignetting) if settings.vignetting > 0 else None
         rng = np.random.default_rng([options.seed, frame, camera_index, 13])
         amplification = float(job.amplification[camera.name][frame]) if job.amplification else 1.0
-        image, _ = form_image(camera, render_with_depth, _camera_pose_at(job, camera), capture, settings, amplification, rng,
-                              rays, vignetting)
+        image, _ = form_image(camera, render_with_depth, _camera_pose_at(job, camera), capture, settings, amplification, rng, vignetting)
         images[camera.name] = apply_sensor_effects(image, options, timestamp, frame, camera_index)
     return images
 
