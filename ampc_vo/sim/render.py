@@ -21,8 +21,16 @@ Conventions: ``T_world_camera = T_world_body @ T_body_camera`` (DESIGN 1), OpenC
 Road quads (``kind == 'road'``) carry painted lane markings along their ``axis_u`` (edge lines and a
 dashed centre line, across ``b`` in [0, height]), continuous over consecutive road strips.
 
-API: :class:`Renderer` (``render``, ``render_float``, ``depth_pass``), :func:`render_image`,
-:func:`render_sequence`, :class:`RenderOptions` / :func:`render_options_from_dict`.
+Realism (issue 13): cast shadows of walls and boxes on the ground (:func:`shadow_map`, option
+``shadows``), substitute road and grass textures (``road_texture: worn_asphalt``, ``grass_texture:
+verge``), moving bodies whose faces are prepared once in their own frame and moved per frame
+(:meth:`Renderer.moving_bodies`, :func:`move_prepared`: their texture sticks to them). Each camera
+image of a sequence is formed by ``sim.camera_effects.form_image`` (rolling shutter, blur, auto
+exposure metered by :func:`metered_amplification`, vignetting, noise) at the camera's capture time.
+
+API: :class:`Renderer` (``render``, ``render_float``, ``radiance_and_depth``, ``depth_pass``),
+:func:`render_image`, :func:`render_sequence`, :func:`sequence_job` / :func:`render_frame_images`
+(the images of one frame as written), :class:`RenderOptions` / :func:`render_options_from_dict`.
 """
 from __future__ import annotations
 
@@ -585,12 +593,8 @@ class Renderer:
         keep = overlap.any(axis=1)
         return candidates[keep], overlap[keep]
 
-    def depth_pass(self, camera: Camera, T_world_camera: np.ndarray, extra: PreparedQuads | None = None,
-                   rows: tuple[int, int] | None = None) -> VisibilityBuffer:
-        """Nearest hit per pixel (ray casting with a depth test), as a :class:`VisibilityBuffer`.
-
-        ``rows = (first, stop)``: only image rows ``first:stop`` (a rolling-shutter band); the buffer
-        then has ``stop - first`` rows and only the tiles covering them are ray cast."""
+    def depth_pass(self, camera: Camera, T_world_camera: np.ndarray, extra: PreparedQuads | None = None) -> VisibilityBuffer:
+        """Nearest hit per pixel (ray casting with a depth test), as a :class:`VisibilityBuffer`."""
         quads = self.quads if extra is None else _concat_prepared(self.quads, extra)
         rays = self.rays_of(camera)
         R_world_camera = np.asarray(T_world_camera[:3, :3], float)
@@ -613,10 +617,6 @@ class Renderer:
             outline = np.concatenate([o + along_u, o + w * u_c[:, None, :] + along_v,
                                       o + h * v_c[:, None, :] + w * u_c[:, None, :] - along_u, o + h * v_c[:, None, :] - along_v], axis=1)
             candidates, overlap = self._candidate_tiles(camera, rays, quads, centre, origin_c, n_c, outline)
-            if rows is not None:
-                tile = self.options.tile_size
-                in_band = (rays.tile_row >= rows[0] // tile) & (rays.tile_row <= (rows[1] - 1) // tile)
-                overlap = overlap & in_band[None, :]
             nearest = np.linalg.norm(centre[candidates], axis=1) - quads.radius[candidates]
             order = np.argsort(nearest)
             axes_c = np.stack([n_c, u_c, v_c], axis=2).astype(np.float32)  # (Q, 3, 3): columns n, u, v
@@ -653,9 +653,8 @@ class Renderer:
                 np.copyto(ids, np.int32(q), where=hit)
                 quad_id[tiles] = ids
             self.last_stats = {"candidates": int(candidates.size), "quads_tested": tested_quads, "ray_tests": tested_pixels}
-        first, stop = (0, camera.height) if rows is None else rows
-        order = rays.image_order.reshape(camera.height, camera.width)[first:stop].ravel()
-        shape = (stop - first, camera.width)
+        order = rays.image_order
+        shape = (camera.height, camera.width)
         depth_image = depth.ravel()[order].reshape(shape)
         id_image = quad_id.ravel()[order].reshape(shape)
         # Surface coordinates and incidence of the winning quad, per pixel (one gather of its constants).
@@ -664,7 +663,7 @@ class Renderer:
         hit_image = id_image >= 0
         q = np.maximum(id_image, 0).astype(np.intp)
         t = np.where(hit_image, depth_image, np.float32(0.0))
-        ray_x, ray_y, ray_z = rays.rays_planes[:, first:stop]
+        ray_x, ray_y, ray_z = rays.rays_planes
         if len(quads):
             table = np.concatenate([axes_c.reshape(-1, 9), plane.astype(np.float32), quads.offset_a[:, None].astype(np.float32),
                                     quads.offset_b[:, None].astype(np.float32), quads.texture_map.reshape(-1, 6).astype(np.float32)], axis=1)
@@ -720,11 +719,9 @@ class Renderer:
         return result
 
     def _render_float_and_depth(self, camera: Camera, T_world_camera: np.ndarray,
-                                extra_quads: Sequence[Quad] | PreparedQuads | None, rows: tuple[int, int] | None = None,
-                                ) -> tuple[np.ndarray, np.ndarray]:
+                                extra_quads: Sequence[Quad] | PreparedQuads | None) -> tuple[np.ndarray, np.ndarray]:
         extra = extra_quads if isinstance(extra_quads, PreparedQuads) or extra_quads is None else self.prepare_extra(extra_quads)
-        visible = self.depth_pass(camera, T_world_camera, extra, rows)
-        first, stop = (0, camera.height) if rows is None else rows
+        visible = self.depth_pass(camera, T_world_camera, extra)
         quads = visible.quads
         rays = self.rays_of(camera)
         options = self.options
@@ -742,7 +739,7 @@ class Renderer:
             texels_per_m, texture_x, gain, road_flag, road_along, road_width, horizontal = constants
             incidence = np.maximum(visible.cos_incidence, np.float32(0.02))
             incidence = np.sqrt(incidence) if options.incidence_exponent == 0.5 else incidence ** np.float32(options.incidence_exponent)
-            pixel_m = t * rays.pixel_angle[first:stop]
+            pixel_m = t * rays.pixel_angle
             footprint_m = pixel_m / incidence
             level = np.log2(np.maximum(footprint_m * texels_per_m, np.float32(1e-6)))
             if options.mip_bias:
@@ -783,10 +780,10 @@ class Renderer:
         sky = ~hit
         if sky.any():  # brighter towards the horizon
             up = R_world_camera[2, :].astype(np.float32)  # world z of the rays
-            planes = rays.rays_planes[:, first:stop]
+            planes = rays.rays_planes
             elevation = np.clip(planes[0][sky] * up[0] + planes[1][sky] * up[1] + planes[2][sky] * up[2], 0.0, 1.0)
             image[sky] = options.sky_horizon + (options.sky_zenith - options.sky_horizon) * np.sqrt(elevation)
-        image[~rays.valid[first:stop]] = 0.0
+        image[~rays.valid] = 0.0
         return image, visible.depth
 
     def render(self, camera: Camera, T_world_camera: np.ndarray, extra_quads: Sequence[Quad] = ()) -> np.ndarray:
