@@ -135,14 +135,18 @@ def _points_at(points: np.ndarray, finite: np.ndarray, dt: np.ndarray, velocity:
     return points - dt[:, None] * motion
 
 
-def form_image(camera: Camera, render_with_depth: Callable[[np.ndarray, float], tuple[np.ndarray, np.ndarray]],
+WARP_MARGIN_PX = 16  # the warped image is rendered this much larger on every side (its sources near the edges)
+
+
+def form_image(camera: Camera, render_with_depth: Callable[[np.ndarray, float, int], tuple[np.ndarray, np.ndarray, np.ndarray]],
                pose_at: Callable[[np.ndarray], np.ndarray], capture_time: float, settings: CameraSettings, amplification: float,
-               rng: np.random.Generator, rays: np.ndarray, vignetting: np.ndarray | None = None) -> tuple[np.ndarray, ImageFormation]:
+               rng: np.random.Generator, vignetting: np.ndarray | None = None) -> tuple[np.ndarray, ImageFormation]:
     """Float grey image (H, W) of one capture and how it was formed (module docstring, steps 1-5).
 
-    ``render_with_depth(T_world_camera, time) -> (radiance (H, W), ray distance (H, W), inf for sky)``
-    renders the scene (with the traffic at ``time``); ``pose_at(times) -> (N, 4, 4)``; ``rays`` (3, H, W)
-    the unit pixel rays. The image is rendered once, at the middle row's time, and warped: each
+    ``render_with_depth(T_world_camera, time, margin) -> (radiance, ray distance (inf: sky), unit rays
+    (3, ...))`` renders the scene (with the traffic at ``time``) for the camera enlarged by ``margin``
+    pixels on every side (the principal point shifted by ``margin``); ``pose_at(times) -> (N, 4, 4)``.
+    The image is rendered once, at the middle row's time, and warped: each
     surface point (from the depth) is moved with the camera's motion to where the camera sees it
     at its own row's time (rolling shutter) and along its image motion over the exposure (blur). The
     motion field is exact (fixed point, first order in the motion over the readout) on a 4-pixel
@@ -154,17 +158,19 @@ def form_image(camera: Camera, render_with_depth: Callable[[np.ndarray, float], 
     readout = camera.readout_time
     middle = capture_time + 0.5 * readout
     T_middle = pose_at(np.array([middle]))[0]
-    radiance, depth = render_with_depth(T_middle, middle)
     samples = settings.motion_blur_samples if exposure_s > 0 else 1
     if readout <= 0 and samples <= 1:
+        radiance = render_with_depth(T_middle, middle, 0)[0]
         return expose(radiance, amplification, settings, rng, vignetting), ImageFormation(middle, readout, 1, exposure_s, amplification, 0.0)
+    margin = WARP_MARGIN_PX
+    radiance, depth, rays = render_with_depth(T_middle, middle, margin)
     height, width = camera.height, camera.width
     velocity, omega = camera_velocity(pose_at, middle)
     # Exact motion field on a grid of pixels: rolling-shutter target and image velocity.
     grid_v, grid_u = np.mgrid[0:height:_GRID_STEP, 0:width:_GRID_STEP]
-    distance = depth[grid_v, grid_u].astype(np.float64).ravel()
+    distance = depth[grid_v + margin, grid_u + margin].astype(np.float64).ravel()
     finite = np.isfinite(distance)
-    directions = rays[:, grid_v, grid_u].reshape(3, -1).T.astype(np.float64)
+    directions = rays[:, grid_v + margin, grid_u + margin].reshape(3, -1).T.astype(np.float64)
     points = directions * np.where(finite, distance, 1.0)[:, None]
     source = np.stack([grid_u.ravel(), grid_v.ravel()], axis=1).astype(np.float64)
     target = source.copy()
@@ -200,7 +206,8 @@ def form_image(camera: Camera, render_with_depth: Callable[[np.ndarray, float], 
     offsets = blur_offsets(samples, exposure_s)
     image = np.zeros((height, width), np.float32)
     for offset in offsets:  # the point seen at q at row time + offset came from p - velocity * offset
-        image += cv2.remap(radiance, map_u - velocity_at[..., 0] * np.float32(offset), map_v - velocity_at[..., 1] * np.float32(offset),
+        image += cv2.remap(radiance, map_u + np.float32(margin) - velocity_at[..., 0] * np.float32(offset),
+                           map_v + np.float32(margin) - velocity_at[..., 1] * np.float32(offset),
                            cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     image /= np.float32(len(offsets))
     max_shift = float(np.max(np.hypot(target[:, 0] - source[:, 0], target[:, 1] - source[:, 1]))) if len(target) else 0.0

@@ -15,13 +15,15 @@ trajectory. The trajectory to sample is an argument: the camera-rate one of a si
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ampc_vo.errors import ConfigError
 from ampc_vo.io.groundtruth import Trajectory
 
-__all__ = ["se3_log", "se3_exp", "interpolate_poses", "sample_poses"]
+__all__ = ["se3_log", "se3_exp", "interpolate_poses", "sample_poses", "PoseSampler"]
 
 _SMALL_ANGLE = 1e-6
 
@@ -92,3 +94,36 @@ def sample_poses(trajectory: Trajectory, body: str, times: np.ndarray) -> np.nda
     exact = fraction == 0.0
     result[exact] = poses[index[exact]]
     return result
+
+
+@dataclass(frozen=True)
+class PoseSampler:
+    """:func:`sample_poses` for many calls on one trajectory and body: the twist of every segment
+    (``log(T_a^-1 T_b)``) is computed once, each call only exponentiates."""
+
+    timestamps: np.ndarray   # (F,)
+    poses: np.ndarray        # (F, 4, 4)
+    twists: np.ndarray       # (F - 1, 6)
+
+    @staticmethod
+    def of(trajectory: Trajectory, body: str) -> "PoseSampler":
+        stamps = np.asarray(trajectory.timestamps, float)
+        poses = np.asarray(trajectory.pose(body), float)
+        if len(stamps) == 0:
+            raise ConfigError("PoseSampler: the trajectory has no samples")
+        if np.any(np.diff(stamps) <= 0):
+            raise ConfigError("PoseSampler: trajectory timestamps must increase strictly")
+        if len(stamps) == 1:
+            return PoseSampler(stamps, poses, np.zeros((0, 6)))
+        return PoseSampler(stamps, poses, se3_log(np.linalg.solve(poses[:-1], poses[1:])))
+
+    def __call__(self, times: np.ndarray) -> np.ndarray:
+        times = np.asarray(times, float).reshape(-1)
+        if len(self.timestamps) == 1:
+            return np.repeat(self.poses[:1], len(times), axis=0)
+        index = np.clip(np.searchsorted(self.timestamps, times, side="right") - 1, 0, len(self.timestamps) - 2)
+        fraction = (times - self.timestamps[index]) / (self.timestamps[index + 1] - self.timestamps[index])
+        result = self.poses[index] @ se3_exp(fraction[:, None] * self.twists[index])
+        exact = fraction == 0.0
+        result[exact] = self.poses[index[exact]]
+        return result

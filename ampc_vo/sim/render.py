@@ -21,8 +21,16 @@ Conventions: ``T_world_camera = T_world_body @ T_body_camera`` (DESIGN 1), OpenC
 Road quads (``kind == 'road'``) carry painted lane markings along their ``axis_u`` (edge lines and a
 dashed centre line, across ``b`` in [0, height]), continuous over consecutive road strips.
 
-API: :class:`Renderer` (``render``, ``render_float``, ``depth_pass``), :func:`render_image`,
-:func:`render_sequence`, :class:`RenderOptions` / :func:`render_options_from_dict`.
+Realism (issue 13): cast shadows of walls and boxes on the ground (:func:`shadow_map`, option
+``shadows``), substitute road and grass textures (``road_texture: worn_asphalt``, ``grass_texture:
+verge``), moving bodies whose faces are prepared once in their own frame and moved per frame
+(:meth:`Renderer.moving_bodies`, :func:`move_prepared`: their texture sticks to them). Each camera
+image of a sequence is formed by ``sim.camera_effects.form_image`` (rolling shutter, blur, auto
+exposure metered by :func:`metered_amplification`, vignetting, noise) at the camera's capture time.
+
+API: :class:`Renderer` (``render``, ``render_float``, ``radiance_and_depth``, ``depth_pass``),
+:func:`render_image`, :func:`render_sequence`, :func:`sequence_job` / :func:`render_frame_images`
+(the images of one frame as written), :class:`RenderOptions` / :func:`render_options_from_dict`.
 """
 from __future__ import annotations
 
@@ -71,6 +79,10 @@ class RenderOptions:
     sky_horizon: float = 235.0        # grey level of the sky at the horizon
     shading: bool = True              # per-quad brightness from a sun direction and albedo jitter
     road_markings: bool = True
+    road_texture: str = ""            # texture of the road surface instead of the scene's (e.g. worn_asphalt)
+    grass_texture: str = ""           # texture of the scene's grass beside the road (e.g. verge)
+    shadows: bool = False             # cast shadows of walls and boxes on the ground (sun: _SUN_DIRECTION)
+    shadow_darkness: float = 0.5      # brightness of the ground in shadow (sky light only)
     sensor_noise_sigma: float = 0.0
     exposure_variation: float = 0.0
     motion_blur_samples: int = 1
@@ -198,6 +210,7 @@ class PreparedQuads:
     texture_index: np.ndarray    # (Q,) int into the atlas
     gain: np.ndarray        # (Q,) brightness factor
     road: np.ndarray        # (Q,) bool: paint lane markings
+    horizontal: np.ndarray  # (Q,) bool: texture mapped from world (x, y); receives cast shadows
     parent_height: np.ndarray    # (Q,) m: road width across (parent quad's height)
     centre: np.ndarray      # (Q, 3) bounding sphere
     radius: np.ndarray      # (Q,)
@@ -297,6 +310,10 @@ def prepare_quads(quads: Sequence[Quad], atlas: TextureAtlas, options: RenderOpt
     columns: dict[str, list] = {name: [] for name in PreparedQuads.__dataclass_fields__}
     road_offsets = _road_chain_offsets(quads)
     for parent_index, quad in enumerate(quads):
+        if quad.kind == "road" and options.road_texture:
+            quad = dataclasses.replace(quad, texture=options.road_texture)
+        elif quad.texture == "grass" and options.grass_texture:
+            quad = dataclasses.replace(quad, texture=options.grass_texture)
         if quad.texture not in atlas.names:
             raise ConfigError(f"quad {parent_index} ({quad.kind}): texture {quad.texture!r} not in the atlas {atlas.names}")
         if quad.texture_scale <= 0 or quad.width <= 0 or quad.height <= 0:
@@ -308,7 +325,8 @@ def prepare_quads(quads: Sequence[Quad], atlas: TextureAtlas, options: RenderOpt
         axis_v = np.asarray(quad.axis_v, float)
         origin = np.asarray(quad.origin, float)
         normal = np.cross(axis_u, axis_v)
-        horizontal = abs(normal[2]) > 0.9 and quad.kind != "marker"
+        # Boxes (vehicles, the trailer) keep surface coordinates on their roofs too: they may move.
+        horizontal = abs(normal[2]) > 0.9 and quad.kind not in ("marker", "box")
         if horizontal:
             texture_map = np.array([[axis_u[0], axis_v[0], origin[0]], [axis_u[1], axis_v[1], origin[1]]])
         elif quad.kind == "marker":
@@ -342,21 +360,80 @@ def prepare_quads(quads: Sequence[Quad], atlas: TextureAtlas, options: RenderOpt
                 columns["texture_index"].append(atlas.index(quad.texture))
                 columns["gain"].append(gain)
                 columns["road"].append(quad.kind == "road" and options.road_markings)
+                columns["horizontal"].append(horizontal)
                 columns["parent_height"].append(quad.height)
                 columns["centre"].append(piece_origin + 0.5 * piece_w * axis_u + 0.5 * piece_h * axis_v)
                 columns["radius"].append(0.5 * math.hypot(piece_w, piece_h))
     if not columns["width"]:
         empty = {name: np.zeros((0, 3)) for name in ("origin", "axis_u", "axis_v", "normal", "centre")}
         empty.update({name: np.zeros(0) for name in ("width", "height", "offset_a", "offset_b", "road_along", "texture_scale", "gain", "parent_height", "radius")})
-        return PreparedQuads(**empty, texture_map=np.zeros((0, 2, 3)), texture_index=np.zeros(0, np.int64), road=np.zeros(0, bool))
+        return PreparedQuads(**empty, texture_map=np.zeros((0, 2, 3)), texture_index=np.zeros(0, np.int64), road=np.zeros(0, bool),
+                             horizontal=np.zeros(0, bool))
     arrays = {name: np.asarray(values) for name, values in columns.items()}
     arrays["texture_index"] = arrays["texture_index"].astype(np.int64)
     arrays["road"] = arrays["road"].astype(bool)
     return PreparedQuads(**arrays)
 
 
+@dataclass(frozen=True)
+class ShadowMap:
+    """Where the ground (z = 0) is lit: ``lit`` (H, W) float32 in [0, 1] on a grid of ``resolution``
+    metres from world ``origin`` (x, y) (row = y, column = x)."""
+
+    origin: np.ndarray
+    resolution: float
+    lit: np.ndarray
+
+    def sample(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Bilinear lit fraction at world points (outside the map: lit)."""
+        map_x = ((x - np.float32(self.origin[0])) / np.float32(self.resolution)).astype(np.float32)
+        map_y = ((y - np.float32(self.origin[1])) / np.float32(self.resolution)).astype(np.float32)
+        lit = cv2.remap(self.lit, map_x.reshape(map_x.shape[0], -1), map_y.reshape(map_y.shape[0], -1), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=1.0)
+        return lit.reshape(np.shape(x))
+
+
+_SHADOW_CASTERS = ("facade", "box", "pole")
+_MAX_SHADOW_SIDE = 4096
+
+
+def shadow_map(quads: Sequence[Quad], sun: np.ndarray, resolution: float = 0.2) -> ShadowMap | None:
+    """Cast shadows of walls, boxes and poles on the ground plane z = 0 (a parallel projection along
+    the sun direction: each quad's shadow is the convex polygon of its corners moved by
+    ``-z / sun_z * sun``), rasterised anti-aliased and softened by about one cell (penumbra).
+    Horizontal surfaces at other heights get the z = 0 shadows (exact for a flat world)."""
+    sun = np.asarray(sun, float) / np.linalg.norm(sun)
+    ground = [quad for quad in quads if quad.kind in ("road", "ground")]
+    casters = [quad for quad in quads if quad.kind in _SHADOW_CASTERS]
+    if not ground or not casters or sun[2] <= 0.05:
+        return None
+    corners = np.array([[q.origin, q.origin + q.width * q.axis_u, q.origin + q.width * q.axis_u + q.height * q.axis_v, q.origin + q.height * q.axis_v]
+                        for q in casters])                                         # (C, 4, 3)
+    shadows = corners[..., :2] - (np.maximum(corners[..., 2:3], 0.0) / sun[2]) * sun[:2]
+    extent = np.array([[q.origin, q.origin + q.width * q.axis_u + q.height * q.axis_v] for q in ground]).reshape(-1, 3)[:, :2]
+    low, high = extent.min(axis=0), extent.max(axis=0)
+    resolution = max(resolution, float(np.max(high - low)) / _MAX_SHADOW_SIDE)
+    size = np.ceil((high - low) / resolution).astype(int) + 2
+    shade = np.zeros((size[1], size[0]), np.uint8)
+    scale = 16  # cv2 sub-pixel shift: 4 fractional bits
+    for polygon in shadows:
+        points = np.round((polygon - low) / resolution * scale).astype(np.int32)
+        cv2.fillConvexPoly(shade, cv2.convexHull(points), 255, lineType=cv2.LINE_AA, shift=4)
+    lit = 1.0 - cv2.GaussianBlur(shade.astype(np.float32) / 255.0, (0, 0), 0.7)
+    return ShadowMap(low, resolution, lit.astype(np.float32))
+
+
 def _concat_prepared(first: PreparedQuads, second: PreparedQuads) -> PreparedQuads:
     return PreparedQuads(**{name: np.concatenate([getattr(first, name), getattr(second, name)]) for name in PreparedQuads.__dataclass_fields__})
+
+
+def move_prepared(quads: PreparedQuads, T_world_body: np.ndarray) -> PreparedQuads:
+    """Quads prepared in a body frame, moved rigidly to ``T_world_body``: geometry changes, texture
+    coordinates (surface coordinates of non-horizontal quads) and shading stay, so a moving body's
+    texture moves with it."""
+    R, p = T_world_body[:3, :3], T_world_body[:3, 3]
+    return dataclasses.replace(quads, origin=quads.origin @ R.T + p, axis_u=quads.axis_u @ R.T, axis_v=quads.axis_v @ R.T,
+                               normal=quads.normal @ R.T, centre=quads.centre @ R.T + p)
 
 
 def _paint_markings(surface: np.ndarray, along: np.ndarray, across: np.ndarray, road_width: np.ndarray,
@@ -409,7 +486,9 @@ class Renderer:
             textures = load_textures(seed=self.options.seed)
         self.atlas = textures if isinstance(textures, TextureAtlas) else build_atlas(textures)
         self.quads = prepare_quads(merge_collinear_strips(scene.quads), self.atlas, self.options)
+        self.shadows = shadow_map(scene.quads, _SUN_DIRECTION) if self.options.shadows else None
         self._rays: dict[tuple, CameraRays] = {}
+        self._bodies: dict[tuple, tuple] = {}  # moving bodies' faces prepared in their own frames
         self.last_stats: dict[str, int] = {}  # work of the last depth pass (candidates, quads and ray tests)
 
     def rays_of(self, camera: Camera) -> CameraRays:
@@ -514,12 +593,8 @@ class Renderer:
         keep = overlap.any(axis=1)
         return candidates[keep], overlap[keep]
 
-    def depth_pass(self, camera: Camera, T_world_camera: np.ndarray, extra: PreparedQuads | None = None,
-                   rows: tuple[int, int] | None = None) -> VisibilityBuffer:
-        """Nearest hit per pixel (ray casting with a depth test), as a :class:`VisibilityBuffer`.
-
-        ``rows = (first, stop)``: only image rows ``first:stop`` (a rolling-shutter band); the buffer
-        then has ``stop - first`` rows and only the tiles covering them are ray cast."""
+    def depth_pass(self, camera: Camera, T_world_camera: np.ndarray, extra: PreparedQuads | None = None) -> VisibilityBuffer:
+        """Nearest hit per pixel (ray casting with a depth test), as a :class:`VisibilityBuffer`."""
         quads = self.quads if extra is None else _concat_prepared(self.quads, extra)
         rays = self.rays_of(camera)
         R_world_camera = np.asarray(T_world_camera[:3, :3], float)
@@ -542,10 +617,6 @@ class Renderer:
             outline = np.concatenate([o + along_u, o + w * u_c[:, None, :] + along_v,
                                       o + h * v_c[:, None, :] + w * u_c[:, None, :] - along_u, o + h * v_c[:, None, :] - along_v], axis=1)
             candidates, overlap = self._candidate_tiles(camera, rays, quads, centre, origin_c, n_c, outline)
-            if rows is not None:
-                tile = self.options.tile_size
-                in_band = (rays.tile_row >= rows[0] // tile) & (rays.tile_row <= (rows[1] - 1) // tile)
-                overlap = overlap & in_band[None, :]
             nearest = np.linalg.norm(centre[candidates], axis=1) - quads.radius[candidates]
             order = np.argsort(nearest)
             axes_c = np.stack([n_c, u_c, v_c], axis=2).astype(np.float32)  # (Q, 3, 3): columns n, u, v
@@ -582,9 +653,8 @@ class Renderer:
                 np.copyto(ids, np.int32(q), where=hit)
                 quad_id[tiles] = ids
             self.last_stats = {"candidates": int(candidates.size), "quads_tested": tested_quads, "ray_tests": tested_pixels}
-        first, stop = (0, camera.height) if rows is None else rows
-        order = rays.image_order.reshape(camera.height, camera.width)[first:stop].ravel()
-        shape = (stop - first, camera.width)
+        order = rays.image_order
+        shape = (camera.height, camera.width)
         depth_image = depth.ravel()[order].reshape(shape)
         id_image = quad_id.ravel()[order].reshape(shape)
         # Surface coordinates and incidence of the winning quad, per pixel (one gather of its constants).
@@ -593,7 +663,7 @@ class Renderer:
         hit_image = id_image >= 0
         q = np.maximum(id_image, 0).astype(np.intp)
         t = np.where(hit_image, depth_image, np.float32(0.0))
-        ray_x, ray_y, ray_z = rays.rays_planes[:, first:stop]
+        ray_x, ray_y, ray_z = rays.rays_planes
         if len(quads):
             table = np.concatenate([axes_c.reshape(-1, 9), plane.astype(np.float32), quads.offset_a[:, None].astype(np.float32),
                                     quads.offset_b[:, None].astype(np.float32), quads.texture_map.reshape(-1, 6).astype(np.float32)], axis=1)
@@ -629,15 +699,29 @@ class Renderer:
         return self._render_float_and_depth(camera, T_world_camera, extra_quads)
 
     def prepare_extra(self, extra_quads: Sequence[Quad]) -> PreparedQuads | None:
-        """Extra per-frame quads (traffic, the trailer body) prepared once for several bands."""
+        """Extra per-frame quads prepared for :meth:`radiance_and_depth`."""
         return prepare_quads(extra_quads, self.atlas, self.options, seed_offset=10**6) if len(extra_quads) else None
 
+    def moving_bodies(self, dynamic: Any, time: float, camera: Camera) -> PreparedQuads | None:
+        """The faces of the moving bodies ``camera`` sees at ``time`` (``traffic.DynamicScene``),
+        prepared once per body in its own frame and moved to its pose (the texture sticks to the body)."""
+        moved = []
+        for body in dynamic.visible_bodies(camera):
+            key = (id(dynamic), body)
+            if key not in self._bodies:  # the scene is kept with its entry: its id cannot be reused
+                self._bodies[key] = (dynamic, prepare_quads(dynamic.faces[body], self.atlas, self.options, seed_offset=10**6 + body))
+            moved.append(move_prepared(self._bodies[key][1], dynamic.poses(body, np.array([time]))[0]))
+        if not moved:
+            return None
+        result = moved[0]
+        for other in moved[1:]:
+            result = _concat_prepared(result, other)
+        return result
+
     def _render_float_and_depth(self, camera: Camera, T_world_camera: np.ndarray,
-                                extra_quads: Sequence[Quad] | PreparedQuads | None, rows: tuple[int, int] | None = None,
-                                ) -> tuple[np.ndarray, np.ndarray]:
+                                extra_quads: Sequence[Quad] | PreparedQuads | None) -> tuple[np.ndarray, np.ndarray]:
         extra = extra_quads if isinstance(extra_quads, PreparedQuads) or extra_quads is None else self.prepare_extra(extra_quads)
-        visible = self.depth_pass(camera, T_world_camera, extra, rows)
-        first, stop = (0, camera.height) if rows is None else rows
+        visible = self.depth_pass(camera, T_world_camera, extra)
         quads = visible.quads
         rays = self.rays_of(camera)
         options = self.options
@@ -651,11 +735,11 @@ class Renderer:
             t = visible.depth
             # Per-quad constants, gathered per pixel in one call (contiguous planes).
             constants = np.take(np.stack([atlas.size / quads.texture_scale, atlas.level_x[quads.texture_index] + (atlas.pad - 0.5),
-                                          quads.gain, quads.road, quads.road_along, quads.parent_height]).astype(np.float32), q, axis=1)
-            texels_per_m, texture_x, gain, road_flag, road_along, road_width = constants
+                                          quads.gain, quads.road, quads.road_along, quads.parent_height, quads.horizontal]).astype(np.float32), q, axis=1)
+            texels_per_m, texture_x, gain, road_flag, road_along, road_width, horizontal = constants
             incidence = np.maximum(visible.cos_incidence, np.float32(0.02))
             incidence = np.sqrt(incidence) if options.incidence_exponent == 0.5 else incidence ** np.float32(options.incidence_exponent)
-            pixel_m = t * rays.pixel_angle[first:stop]
+            pixel_m = t * rays.pixel_angle
             footprint_m = pixel_m / incidence
             level = np.log2(np.maximum(footprint_m * texels_per_m, np.float32(1e-6)))
             if options.mip_bias:
@@ -688,14 +772,18 @@ class Renderer:
                 along = visible.coord_a.ravel()[road] + road_along.ravel()[road]
                 surface.ravel()[road] = _paint_markings(surface.ravel()[road], along, visible.coord_b.ravel()[road],
                                                         road_width.ravel()[road], pixel_m.ravel()[road], footprint_m.ravel()[road])
+            if self.shadows is not None:  # horizontal quads: texture coordinates are world (x, y)
+                lit = self.shadows.sample(visible.texture_s, visible.texture_t)
+                shade = np.float32(options.shadow_darkness) + np.float32(1.0 - options.shadow_darkness) * lit
+                surface *= np.where(horizontal > 0, shade, np.float32(1.0))
             image = surface
         sky = ~hit
         if sky.any():  # brighter towards the horizon
             up = R_world_camera[2, :].astype(np.float32)  # world z of the rays
-            planes = rays.rays_planes[:, first:stop]
+            planes = rays.rays_planes
             elevation = np.clip(planes[0][sky] * up[0] + planes[1][sky] * up[1] + planes[2][sky] * up[2], 0.0, 1.0)
             image[sky] = options.sky_horizon + (options.sky_zenith - options.sky_horizon) * np.sqrt(elevation)
-        image[~rays.valid[first:stop]] = 0.0
+        image[~rays.valid] = 0.0
         return image, visible.depth
 
     def render(self, camera: Camera, T_world_camera: np.ndarray, extra_quads: Sequence[Quad] = ()) -> np.ndarray:
@@ -779,13 +867,27 @@ def _camera_pose_at(job: SequenceJob, camera: Camera):
     return pose_at
 
 
-def _extra_quads(renderer: Renderer, job: SequenceJob, camera: Camera, time: float) -> list[Quad]:
-    extra: list[Quad] = []
+def _extra_quads(renderer: Renderer, job: SequenceJob, camera: Camera, time: float) -> PreparedQuads | None:
+    """Prepared moving quads at ``time``: the render options' moving vehicle and the job's moving bodies."""
+    parts = []
     if renderer.options.moving_vehicle:
-        extra += vehicle_quads(vehicle_pose(job.trajectory, time, renderer.options))
+        parts.append(renderer.prepare_extra(vehicle_quads(vehicle_pose(job.trajectory, time, renderer.options))))
     if job.dynamic_scene is not None:
-        extra += job.dynamic_scene.quads_at(time, camera)
-    return extra
+        parts.append(renderer.moving_bodies(job.dynamic_scene, time, camera))
+    parts = [part for part in parts if part is not None]
+    if not parts:
+        return None
+    return parts[0] if len(parts) == 1 else _concat_prepared(parts[0], parts[1])
+
+
+def padded_camera(camera: Camera, margin: int) -> Camera:
+    """The camera with ``margin`` more pixels on every side (same model, principal point shifted)."""
+    if margin <= 0:
+        return camera
+    from ampc_vo.rig import replace_camera
+
+    return replace_camera(camera, width=camera.width + 2 * margin, height=camera.height + 2 * margin,
+                          cx=camera.cx + margin, cy=camera.cy + margin)
 
 
 def render_frame_images(renderer: Renderer, job: SequenceJob, frame: int) -> dict[str, np.ndarray]:
@@ -800,15 +902,15 @@ def render_frame_images(renderer: Renderer, job: SequenceJob, frame: int) -> dic
         settings = job.settings[camera_index]
         capture = float(job.capture_times[camera.name][frame])
 
-        def render_with_depth(T_world_camera: np.ndarray, time: float, camera=camera) -> tuple[np.ndarray, np.ndarray]:
-            return renderer.radiance_and_depth(camera, T_world_camera, _extra_quads(renderer, job, camera, time))
+        def render_with_depth(T_world_camera: np.ndarray, time: float, margin: int, camera=camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            padded = padded_camera(camera, margin)
+            radiance, depth = renderer.radiance_and_depth(padded, T_world_camera, _extra_quads(renderer, job, camera, time))
+            return radiance, depth, renderer.rays_of(padded).rays_planes
 
-        rays = renderer.rays_of(camera).rays_planes
-        vignetting = vignetting_factor(rays[2], settings.vignetting) if settings.vignetting > 0 else None
+        vignetting = vignetting_factor(renderer.rays_of(camera).rays_planes[2], settings.vignetting) if settings.vignetting > 0 else None
         rng = np.random.default_rng([options.seed, frame, camera_index, 13])
         amplification = float(job.amplification[camera.name][frame]) if job.amplification else 1.0
-        image, _ = form_image(camera, render_with_depth, _camera_pose_at(job, camera), capture, settings, amplification, rng,
-                              rays, vignetting)
+        image, _ = form_image(camera, render_with_depth, _camera_pose_at(job, camera), capture, settings, amplification, rng, vignetting)
         images[camera.name] = apply_sensor_effects(image, options, timestamp, frame, camera_index)
     return images
 
@@ -837,10 +939,29 @@ def image_paths(rig: Rig, frame: int) -> list[str]:
 _METER_SCALE = 8  # the auto-exposure meter renders at 1/8 of the resolution
 
 
+_METER_INTERVAL_S = 0.2
+
+
+def _meter_frames(times: np.ndarray) -> np.ndarray:
+    """Indices of the frames the auto-exposure meter renders: the first, then each frame at least
+    ``_METER_INTERVAL_S`` after the previous metered one, and the last."""
+    if len(times) == 0:
+        return np.zeros(0, np.int64)
+    chosen, last = [], -np.inf
+    for index, time in enumerate(times):
+        if time - last >= _METER_INTERVAL_S - 1e-9:
+            chosen.append(index)
+            last = time
+    if chosen[-1] != len(times) - 1:
+        chosen.append(len(times) - 1)
+    return np.array(chosen, np.int64)
+
+
 def metered_amplification(renderer: Renderer, job: SequenceJob) -> dict[str, np.ndarray]:
     """Per camera (F,) exposure x gain from auto exposure (``camera_effects.auto_exposure``): the
-    brightness of each frame is metered on a 1/8-resolution rendering at the middle of the readout
-    (with vignetting), in frame order (the loop reacts to the previous frame)."""
+    brightness is metered on 1/8-resolution renderings at the middle of the readout (with
+    vignetting) every ``_METER_INTERVAL_S`` (interpolated between; the loop's time constant is longer),
+    in frame order (the loop reacts to the previous frame)."""
     from ampc_vo.rig import replace_camera
     from ampc_vo.sim.camera_effects import auto_exposure, vignetting_factor
 
@@ -855,10 +976,12 @@ def metered_amplification(renderer: Renderer, job: SequenceJob) -> dict[str, np.
                                fx=camera.fx / scale, fy=camera.fy / scale, cx=(camera.cx + 0.5) / scale - 0.5, cy=(camera.cy + 0.5) / scale - 0.5)
         meter = vignetting_factor(renderer.rays_of(small).rays_planes[2], settings.vignetting)
         times = np.asarray(job.capture_times[camera.name], float) + 0.5 * camera.readout_time
-        poses = _camera_pose_at(job, camera)(times)
+        # Metered at most every _METER_INTERVAL_S (the loop's lag is longer), linear in time between.
+        metered = _meter_frames(times)
+        poses = _camera_pose_at(job, camera)(times[metered])
         brightness = np.array([float(np.mean(renderer.render_float(small, pose, _extra_quads(renderer, job, camera, float(time))) * meter))
-                               for pose, time in zip(poses, times)])
-        result[camera.name] = auto_exposure(brightness, times, settings)
+                               for pose, time in zip(poses, times[metered])])
+        result[camera.name] = auto_exposure(np.interp(times, times[metered], brightness), times, settings)
     return result
 
 

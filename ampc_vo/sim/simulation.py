@@ -302,9 +302,10 @@ def simulate_measurements(
     """
     from ampc_vo.sim.associations import association_ids, overlap_groups
     from ampc_vo.sim.camera_timing import project_rolling_shutter
-    from ampc_vo.sim.motion import sample_poses
+    from ampc_vo.sim.motion import PoseSampler
 
     pose_trajectory = trajectory if pose_trajectory is None else pose_trajectory
+    samplers = {body: PoseSampler.of(pose_trajectory, body) for body in {camera.body for camera in rig.cameras}}
     capture_times = capture_times or {}
     frame_times = np.asarray(trajectory.timestamps, float)
     tree = cKDTree(landmarks.points)
@@ -319,7 +320,7 @@ def simulate_measurements(
             capture = float(camera_timestamps[frame, camera_index])
 
             def pose_at(times: np.ndarray, camera=camera) -> np.ndarray:
-                return sample_poses(pose_trajectory, camera.body, times) @ camera.T_body_camera
+                return samplers[camera.body](times) @ camera.T_body_camera
 
             middle = capture + 0.5 * camera.readout_time
             T_world_camera = pose_at(np.array([middle]))[0]

@@ -113,6 +113,51 @@ def _asphalt(rng: np.random.Generator) -> np.ndarray:
     return np.clip(image * _stains(TEXTURE_SIZE, rng, 0.6), 0, 1)
 
 
+def _worn_asphalt(rng: np.random.Generator) -> np.ndarray:
+    """Low-texture road asphalt (one tile is ~10 m of road): fine aggregate grain of low contrast that
+    the mipmap averages away beyond a few metres, large worn (lighter) and darker areas, a few
+    darker repair patches with sharp edges, sealed cracks and oil stains; the trackable detail of a
+    real road is sparse."""
+    size = TEXTURE_SIZE
+    grain = periodic_noise(size, rng, scales=(128, 256))
+    gravel = _normalise(make_tileable(_crop_resize(_photo("gravel"), rng, 0.35)), 0.0, 1.0)
+    image = 0.34 + 0.018 * grain + 0.012 * gravel
+    image *= 1.0 + 0.10 * periodic_noise(size, rng, scales=(2, 3, 5), weights=(1.0, 0.7, 0.5))  # worn areas
+    canvas = np.zeros((3 * size, 3 * size), np.float32)  # draw on a 3x3 canvas and fold: features wrap seamlessly
+    for _ in range(int(rng.integers(1, 4))):             # repair patches (fresh, darker asphalt)
+        x, y = rng.uniform(size, 2 * size, 2)
+        w, h = rng.uniform(40, 160, 2)
+        corners = cv2.boxPoints(((float(x), float(y)), (float(w), float(h)), float(rng.uniform(-10, 10)))).astype(np.int32)
+        cv2.fillConvexPoly(canvas, corners, float(rng.uniform(-0.09, -0.05)), lineType=cv2.LINE_AA)
+    for _ in range(int(rng.integers(3, 7))):             # sealed cracks: dark, wandering, thin
+        point = rng.uniform(size, 2 * size, 2)
+        heading = rng.uniform(0, 2 * np.pi)
+        points = [point.copy()]
+        for _ in range(int(rng.integers(8, 30))):
+            heading += rng.normal(0, 0.5)
+            point = point + rng.uniform(4, 12) * np.array([np.cos(heading), np.sin(heading)])
+            points.append(point.copy())
+        cv2.polylines(canvas, [np.array(points, np.int32)], False, float(rng.uniform(-0.16, -0.1)), int(rng.integers(1, 3)), cv2.LINE_AA)
+    for _ in range(int(rng.integers(2, 6))):             # oil stains
+        x, y = rng.uniform(size, 2 * size, 2)
+        stain = np.zeros_like(canvas)
+        cv2.ellipse(stain, (int(x), int(y)), (int(rng.uniform(6, 25)), int(rng.uniform(4, 15))), float(rng.uniform(0, 180)), 0, 360, 1.0, -1)
+        canvas -= float(rng.uniform(0.04, 0.1)) * cv2.GaussianBlur(stain, (0, 0), 4)
+    folded = canvas.reshape(3, size, 3, size).sum(axis=(0, 2))
+    return np.clip(image + folded, 0, 1).astype(np.float32)
+
+
+def _verge(rng: np.random.Generator) -> np.ndarray:
+    """Roadside grass and dirt seen from a vehicle: mottled at metre scale (tufts, bare patches), fine
+    blades of low contrast (the grass photograph shrunk), no cobble-like structure."""
+    size = TEXTURE_SIZE
+    blades = _normalise(make_tileable(_crop_resize(_photo("grass"), rng, 0.9)), 0.0, 1.0)
+    fine = cv2.GaussianBlur(periodic_noise(size, rng, scales=(128, 256)), (0, 0), 0.7)
+    mottle = periodic_noise(size, rng, scales=(3, 6, 12, 24), weights=(1.0, 0.8, 0.6, 0.4))
+    image = (0.30 + 0.05 * blades + 0.04 * fine + 0.09 * mottle) * _stains(size, rng, 0.4)
+    return np.clip(image, 0, 1).astype(np.float32)
+
+
 def _grass(rng: np.random.Generator) -> np.ndarray:
     base = make_tileable(_crop_resize(_photo("grass"), rng, 0.5))
     return np.clip(_normalise(base, 0.42, 0.16) * _stains(TEXTURE_SIZE, rng, 0.6), 0, 1)
@@ -221,8 +266,10 @@ def _paint(rng: np.random.Generator) -> np.ndarray:
 
 TEXTURE_BUILDERS = {
     "asphalt": _asphalt,
+    "worn_asphalt": _worn_asphalt,
     "road": _asphalt,
     "grass": _grass,
+    "verge": _verge,
     "gravel": _gravel,
     "brick": _brick,
     "concrete": _concrete,

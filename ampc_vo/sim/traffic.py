@@ -36,6 +36,7 @@ import numpy as np
 
 from ampc_vo.errors import ConfigError
 from ampc_vo.io.groundtruth import Trajectory
+from ampc_vo.sim.motion import PoseSampler
 from ampc_vo.sim.scene import Centerline, Quad
 from ampc_vo.sim.traffic_config import TrailerBodySpec, VehicleSpec, trailer_body_from_dict, traffic_from_list  # noqa: F401
 
@@ -91,6 +92,7 @@ class DynamicScene:
     landmark_face: np.ndarray               # (L,) face index within its body
     landmark_points: np.ndarray             # (L, 3) in the body frame
     road: Any = None                        # sim.road.RoadSurface the traffic drives on (None: z = 0)
+    attached_sampler: Any = None            # motion.PoseSampler of the trailer (bodies fixed to it)
 
     @property
     def body_count(self) -> int:
@@ -114,12 +116,10 @@ class DynamicScene:
         """(N, 4, 4) ``T_world_body`` of body ``body`` at ``times`` (module docstring)."""
         times = np.atleast_1d(np.asarray(times, float))
         if self.attached_to[body]:
-            from ampc_vo.sim.motion import sample_poses
-
             spec = self.trailer_body
             T_trailer_box = np.eye(4)
             T_trailer_box[:3, 3] = (spec.front_x_m - 0.5 * spec.length_m, 0.0, spec.floor_height_m - self.hitch_height)
-            return sample_poses(self.pose_trajectory, self.attached_to[body], times) @ T_trailer_box
+            return self.attached_sampler(times) @ T_trailer_box
         vehicle = self.vehicles[body]
         truck = np.interp(times, self.truck_times, self.truck_arc)
         heading_sign = 1.0
@@ -213,4 +213,6 @@ def build_dynamic_scene(vehicles: tuple[VehicleSpec, ...], trailer_body: Trailer
         truck_arc=np.asarray(arc, float) - float(arc[0]), trailer_body=trailer_body,
         pose_trajectory=trajectory if pose_trajectory is None else pose_trajectory, hitch_height=float(rig.hitch_height),
         faces=tuple(faces), attached_to=tuple(attached), landmark_body=np.concatenate(bodies).astype(np.int64),
-        landmark_face=np.concatenate(face_index).astype(np.int64), landmark_points=np.concatenate(points).reshape(-1, 3), road=road)
+        landmark_face=np.concatenate(face_index).astype(np.int64), landmark_points=np.concatenate(points).reshape(-1, 3),
+        attached_sampler=PoseSampler.of(trajectory if pose_trajectory is None else pose_trajectory, "trailer") if trailer_body is not None else None,
+        road=road)

@@ -237,3 +237,95 @@ def test_traffic_and_trailer_sections_are_validated(repo_root):
                            ({"cameras": {"all": {"jitter_ms": "x"}}}, "jitter_ms")):
         with pytest.raises(ConfigError, match=message):
             sim_config_from_dict({**base, **extra}, repo_root / "configs" / "sim" / "x.yaml")
+
+
+def test_walls_cast_shadows_of_the_right_length_on_the_ground():
+    from ampc_vo.sim.render import shadow_map
+
+    sun = np.array([0.6, 0.0, 0.8])                    # elevation atan(0.8 / 0.6): shadow length = h * 0.75
+    wall = Quad(np.array([0.0, -5.0, 0.0]), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), 10.0, 8.0, "facade", "concrete")
+    ground = Quad(np.array([-20.0, -20.0, 0.0]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 40.0, 40.0, "ground", "grass")
+    shadows = shadow_map([ground, wall], sun, resolution=0.1)
+    x = np.array([-1.0, -5.5, -6.5, 1.0, -3.0, -3.0], np.float32)   # shadow reaches x = -6 (away from the sun)
+    y = np.array([0.0, 0.0, 0.0, 0.0, 4.0, 6.0], np.float32)
+    lit = shadows.sample(x, y)
+    np.testing.assert_allclose(lit, [0.0, 0.0, 1.0, 1.0, 0.0, 1.0], atol=0.02)
+
+
+def test_shadowed_ground_renders_darker(default_rig, atlas):
+    from ampc_vo.sim.render import RenderOptions
+
+    camera = default_rig.camera("front")
+    ground = Quad(np.array([-20.0, -20.0, 0.0]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 80.0, 40.0, "road", "asphalt", 4.0)
+    wall = Quad(np.array([14.0, 30.0, 0.0]), np.array([0.0, -1.0, 0.0]), np.array([0.0, 0.0, 1.0]), 60.0, 30.0, "facade", "concrete")
+    T = planar_pose(0.0, 0.0, 0.0) @ camera.T_body_camera
+    images = {}
+    for shadows in (False, True):
+        options = RenderOptions(shadows=shadows, shadow_darkness=0.4, road_markings=False)
+        images[shadows], depth = Renderer(Scene((ground, wall)), atlas, options).radiance_and_depth(camera, T)
+    ratio = images[True] / np.maximum(images[False], 1e-3)
+    road = np.isfinite(depth) & (np.abs(ratio - 1.0) > 1e-3)
+    assert road.sum() > 1000 and np.median(ratio[road]) == pytest.approx(0.4, abs=0.02)
+
+
+def test_worn_asphalt_has_little_texture_but_some_features():
+    from ampc_vo.sim.textures import make_texture
+
+    worn = make_texture("worn_asphalt").astype(np.float32) / 255
+    textured = make_texture("asphalt").astype(np.float32) / 255
+    coarse = lambda image: cv2.resize(image, (64, 64), interpolation=cv2.INTER_AREA)  # noqa: E731 - seen from metres away
+    assert coarse(worn).std() < 0.4 * coarse(textured).std()
+    assert 0.25 < worn.mean() < 0.4
+    corners = cv2.goodFeaturesToTrack(worn, 500, 0.05, 5)
+    assert corners is not None and 5 <= len(corners) < 0.5 * len(cv2.goodFeaturesToTrack(textured, 500, 0.05, 5))
+
+
+def test_auto_exposure_in_rendered_sequences_brings_a_dark_view_to_the_target(default_rig, atlas, tmp_path):
+    """Frames 0-9 look at a bright wall, then at a dark one: the first dark frames come out dark,
+    then the exposure loop brings the image mean to the target grey (metered on the renderings)."""
+    from ampc_vo.sim.render import RenderOptions
+
+    camera = replace_camera(default_rig.camera("front"), width=160, height=120, fx=80.0, fy=80.0, cx=79.5, cy=59.5)
+    rig = Rig(default_rig.bodies, (camera,))
+    count = 30
+    forward = camera.T_body_camera[:3, 2]
+    scene_quads = []
+    for offset, texture in ((0.0, "paint"), (1000.0, "asphalt")):
+        centre = np.array([offset, 0.0, 0.0]) + camera.T_body_camera[:3, 3] + 4.0 * forward
+        scene_quads.append(dataclasses_replace(_marker(centre, -forward, size=30.0), texture=texture, kind="facade", texture_scale=2.0))
+    tractor = np.stack([planar_pose(0.0 if k < 10 else 1000.0, 0.0, 0.0) for k in range(count)])
+    trajectory = Trajectory(np.arange(count) * 0.1, tractor, tractor.copy(), np.zeros(count))
+    settings = CameraSettingsTable(CameraSettings(auto_exposure=True, target_grey=110.0, exposure_time_constant_s=0.3, max_gain=8.0))
+    options = RenderOptions(processes=1, shading=False, sky_zenith=0.0, sky_horizon=0.0)
+    scene = Scene(tuple(scene_quads))
+    render_sequence(tmp_path, rig, trajectory, scene, options, progress=False, renderer=Renderer(scene, atlas, options), camera_settings=settings)
+    means = [cv2.imread(str(tmp_path / "images" / "front" / f"{k:06d}.png"), cv2.IMREAD_GRAYSCALE).mean() for k in range(count)]
+    assert means[5] == pytest.approx(110.0, rel=0.05)                 # converged on the bright wall
+    assert means[10] < 0.6 * 110.0                                    # the first dark frame: still the bright exposure
+    assert means[11] < means[13] < means[16]                          # recovering with the loop's lag
+    assert means[-1] == pytest.approx(110.0, rel=0.05)
+
+
+def dataclasses_replace(quad: Quad, **changes) -> Quad:
+    """A copy of a quad with some fields changed."""
+    import dataclasses
+
+    return dataclasses.replace(quad, **changes)
+
+
+def test_moving_body_textures_stick_to_the_body(default_rig, atlas):
+    """A box seen from the same relative pose at two places looks the same (texture moves with it)."""
+    from ampc_vo.sim.render import move_prepared, prepare_quads, RenderOptions
+    from ampc_vo.sim.traffic import box_faces
+
+    camera = default_rig.camera("front")
+    renderer = Renderer(Scene(()), atlas, RenderOptions(shading=True))
+    faces = prepare_quads(box_faces(4.5, 1.8, 1.5, "metal"), atlas, renderer.options, seed_offset=10**6)
+    images = []
+    for x, yaw in ((12.0, 0.0), (40.0, 0.7)):
+        T_world_box = planar_pose(x, 2.0, yaw)
+        T_world_camera = T_world_box @ np.linalg.inv(planar_pose(10.0, -1.0, 0.2)) @ camera.T_body_camera
+        images.append(renderer.radiance_and_depth(camera, T_world_camera, move_prepared(faces, T_world_box))[0])
+    hit = images[0] != images[0][0, 0]
+    assert hit.sum() > 2000
+    np.testing.assert_allclose(images[0][hit], images[1][hit], atol=0.05)

@@ -45,6 +45,9 @@ def test_sample_poses_follows_the_screw_motion_between_and_beyond_samples():
     chord_mid = 0.5 * (trajectory.T_world_tractor[3, :3, 3] + trajectory.T_world_tractor[4, :3, 3])
     assert np.linalg.norm(chord_mid - _circle_pose(0.35)[0, :3, 3]) > 1e-3
     np.testing.assert_array_equal(sample_poses(trajectory, "trailer", trajectory.timestamps[5:6])[0], trajectory.T_world_trailer[5])
+    from ampc_vo.sim.motion import PoseSampler
+
+    np.testing.assert_allclose(PoseSampler.of(trajectory, "tractor")(times), _circle_pose(times), atol=1e-9)
 
 
 def test_capture_times_have_the_configured_offset_and_jitter():
