@@ -21,9 +21,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
-from ampc_vo.errors import AmpcError  # noqa: E402
+from ampc_vo.tools.cli import exit_codes  # noqa: E402
 
 
+@exit_codes
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("logs", type=Path, nargs="+", metavar="LOG", help="recordings or dataset folders")
@@ -38,14 +39,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.workers < 1:
         parser.error(f"--workers must be >= 1, got {args.workers}")
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        from ampc_vo.tools.batch import OK, SUMMARY_FILE, make_jobs, run_batch
+    from ampc_vo.tools.batch import OK, SUMMARY_FILE, make_jobs, run_batch
 
-        jobs = make_jobs(args.logs, args.out, args.rig, args.config, args.groundtruth_topic)
-        rows = run_batch(jobs, args.out, args.workers, args.ray, progress=not args.no_progress)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    jobs = make_jobs(args.logs, args.out, args.rig, args.config, args.groundtruth_topic)
+    rows = run_batch(jobs, args.out, args.workers, args.ray, progress=not args.no_progress)
     failed = [row for row in rows if row["status"] != OK]
     for row in failed:
         print(f"{row['log']}: {row['status']}", file=sys.stderr)

@@ -18,9 +18,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
-from ampc_vo.errors import AmpcError  # noqa: E402
+from ampc_vo.tools.cli import exit_codes  # noqa: E402
 
 
+@exit_codes
 def main(argv: list[str] | None = None) -> int:
     from ampc_vo.io.bag_writer import FORMATS
 
@@ -32,27 +33,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pose-topic", default=None, help="write the ground-truth tractor pose on this topic")
     parser.add_argument("--wheel-speed-topic", default=None, help="write the folder's wheel_speed.csv on this topic")
     args = parser.parse_args(argv)
-    try:
-        from ampc_vo.io.bag_writer import RecordingContent, write_recording
-        from ampc_vo.io.folder import read_dataset
-        from ampc_vo.io.wheel_speed import WHEEL_SPEED_FILE, read_wheel_speed_csv
-        from ampc_vo.rig import save_rig
-        from ampc_vo.tools.recordings import with_topics
+    from ampc_vo.io.bag_writer import RecordingContent, write_recording
+    from ampc_vo.io.folder import read_dataset
+    from ampc_vo.io.wheel_speed import WHEEL_SPEED_FILE, read_wheel_speed_csv
+    from ampc_vo.rig import save_rig
+    from ampc_vo.tools.recordings import with_topics
 
-        dataset = read_dataset(args.dataset)
-        dataset = dataclasses.replace(dataset, rig=with_topics(dataset.rig))
-        wheel = None
-        if args.wheel_speed_topic is not None:
-            samples = read_wheel_speed_csv(args.dataset / WHEEL_SPEED_FILE)
-            wheel = (samples.timestamps, samples.speed)
-        content = RecordingContent(compressed=tuple(dataset.camera_names) if args.compressed else (), pose_topic=args.pose_topic,
-                                   wheel_speed=wheel, wheel_speed_topic=args.wheel_speed_topic or RecordingContent.wheel_speed_topic)
-        log = write_recording(dataset, args.out, args.format, content)
-        rig_path = log.parent / f"{log.name}.rig.yaml"
-        save_rig(dataset.rig, rig_path)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    dataset = read_dataset(args.dataset)
+    dataset = dataclasses.replace(dataset, rig=with_topics(dataset.rig))
+    wheel = None
+    if args.wheel_speed_topic is not None:
+        samples = read_wheel_speed_csv(args.dataset / WHEEL_SPEED_FILE)
+        wheel = (samples.timestamps, samples.speed)
+    content = RecordingContent(compressed=tuple(dataset.camera_names) if args.compressed else (), pose_topic=args.pose_topic,
+                               wheel_speed=wheel, wheel_speed_topic=args.wheel_speed_topic or RecordingContent.wheel_speed_topic)
+    log = write_recording(dataset, args.out, args.format, content)
+    rig_path = log.parent / f"{log.name}.rig.yaml"
+    save_rig(dataset.rig, rig_path)
     print(f"{log} ({args.format}, {len(dataset)} frames); rig with topics: {rig_path}")
     return 0
 

@@ -20,9 +20,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
+from ampc_vo.tools.cli import exit_codes  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@exit_codes
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True)
@@ -33,24 +36,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--raw", action="store_true", help="uncompressed images in the recordings")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    from ampc_vo.errors import AmpcError
     from ampc_vo.sim.config import load_sim_config
     from ampc_vo.tools.recordings import compare_log_with_folder, render_unsynchronised
 
-    try:
-        rig = load_sim_config(args.route).load_rig()
-        offsets = [float(value) * 1e-3 for value in args.offsets_ms.split(",")]
-        if len(offsets) != len(rig.cameras):
-            parser.error(f"--offsets-ms: {len(rig.cameras)} offsets needed (cameras {rig.camera_names}), got {len(offsets)}")
-        folder = args.out / "folder"
-        if not (folder / "frames.csv").is_file():
-            render_unsynchronised(args.route, folder, dict(zip(rig.camera_names, offsets)), args.frames, progress=True)
-        work = args.out / ("raw" if args.raw else "compressed")
-        shutil.rmtree(work, ignore_errors=True)
-        comparison = compare_log_with_folder(folder, work, tuple(args.formats.split(",")), compressed=not args.raw)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    rig = load_sim_config(args.route).load_rig()
+    offsets = [float(value) * 1e-3 for value in args.offsets_ms.split(",")]
+    if len(offsets) != len(rig.cameras):
+        parser.error(f"--offsets-ms: {len(rig.cameras)} offsets needed (cameras {rig.camera_names}), got {len(offsets)}")
+    folder = args.out / "folder"
+    if not (folder / "frames.csv").is_file():
+        render_unsynchronised(args.route, folder, dict(zip(rig.camera_names, offsets)), args.frames, progress=True)
+    work = args.out / ("raw" if args.raw else "compressed")
+    shutil.rmtree(work, ignore_errors=True)
+    comparison = compare_log_with_folder(folder, work, tuple(args.formats.split(",")), compressed=not args.raw)
     base = comparison.folder
     print(f"{args.route.name}: offsets {args.offsets_ms} ms, images {'raw' if args.raw else 'JPEG q95'}, {base.distance_m:.0f} m")
     print("| source | keyframes | tractor ATE m | trailer ATE m | hitch RMSE deg | ATE / folder | hitch / folder |")

@@ -17,28 +17,22 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
-from ampc_vo.errors import AmpcError  # noqa: E402
+from ampc_vo.tools.cli import exit_codes  # noqa: E402
 
 
+@exit_codes
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("camchain", type=Path, help="Kalibr camchain.yaml")
     parser.add_argument("--layout", type=Path, required=True, help="layout YAML: camera names, bodies, topics, reference pose, hitch, axles")
     parser.add_argument("--out", type=Path, required=True, help="rig.yaml to write")
     args = parser.parse_args(argv)
-    try:
-        from ampc_vo.io.kalibr import load_rig_from_kalibr
-        from ampc_vo.rig import save_rig
+    from ampc_vo.io.kalibr import load_rig_from_kalibr
+    from ampc_vo.rig import save_rig
 
-        rig = load_rig_from_kalibr(args.camchain, args.layout)
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        save_rig(rig, args.out)
-    except AmpcError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    except OSError as error:
-        print(f"error: {args.out}: cannot write ({error.strerror or error})", file=sys.stderr)
-        return 2
+    rig = load_rig_from_kalibr(args.camchain, args.layout)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    save_rig(rig, args.out)
     print(f"{args.out}: {len(rig.cameras)} cameras ({', '.join(f'{c.name} on {c.body}' for c in rig.cameras)})")
     return 0
 

@@ -594,6 +594,8 @@ class ArticulatedSmoother:
         linked_previous = False
         T_world_k = self._pose(key(k), pending)
         cameras = self.rig.cameras_on(body)
+        # each camera's extrinsic at its capture time, once per keyframe (not per camera pair)
+        extrinsics_k = {camera.name: self._capture_extrinsic(body, keyframe, camera, pending) for camera in cameras}
         cross_gap = 0
         if config.scale.cross_camera and len(cameras) > 1:
             # long cross-camera gaps only with the trailer coupling (joint modes): on a single body
@@ -607,6 +609,7 @@ class ArticulatedSmoother:
             T_j_k = relative_pose(self._pose(key(j), pending), T_world_k)
             if np.linalg.norm(T_j_k[:3, 3]) < config.keyframes.standstill_distance_m:
                 continue
+            extrinsics_j = {camera.name: self._capture_extrinsic(body, earlier, camera, pending) for camera in cameras}
             for camera_j in cameras:
                 first = earlier.observations.cameras.get(camera_j.name)
                 if first is None or len(first) == 0:
@@ -636,8 +639,7 @@ class ArticulatedSmoother:
                     if index_j.size < config.keyframes.min_tracks:
                         continue
                     bearings_j, bearings_k = first.bearings[index_j], second.bearings[index_k]
-                    T_body_camera_j = self._capture_extrinsic(body, earlier, camera_j, pending)
-                    T_body_camera_k = self._capture_extrinsic(body, keyframe, camera_k, pending)
+                    T_body_camera_j, T_body_camera_k = extrinsics_j[camera_j.name], extrinsics_k[camera_k.name]
                     keep = self._gate(camera_j, camera_k, bearings_j, bearings_k, T_j_k, gate_px, T_body_camera_j, T_body_camera_k)
                     if keep.sum() < config.keyframes.min_tracks:
                         continue

@@ -2,7 +2,7 @@
 
 :func:`render_unsynchronised` renders a simulated route with every camera at its own capture time
 (frame time + a per-camera offset; the body pose interpolated between the simulated frames,
-``ampc_vo.sim.render.interpolate_pose``) into our dataset folder with ``<camera>_timestamp``
+``ampc_vo.sim.motion.sample_poses``) into our dataset folder with ``<camera>_timestamp``
 columns, the ground truth at the frame times and the simulated ``wheel_speed.csv``.
 :func:`compare_log_with_folder` writes that folder as a recording (ROS 2 MCAP with compressed
 images, ROS 1 bag, ...), builds the rig through a Kalibr camchain (``ampc_vo.io.kalibr``, as
