@@ -46,8 +46,7 @@ def benchmark_realistic(config_path: str, count: int) -> None:
     for camera in result.rig.cameras:
         renderer.rays_of(camera)
     started, cpu_started = time.perf_counter(), time.process_time()
-    job = sequence_job(renderer, result.rig, result.trajectory, capture_times=result.capture_times,
-                       camera_settings=result.config.cameras, dynamic_scene=result.dynamic)
+    job = sequence_job(renderer, result.rig, result.trajectory, **result.render_inputs())
     metering, metering_cpu = time.perf_counter() - started, time.process_time() - cpu_started
     frames = np.linspace(0, len(result.trajectory) - 1, count).astype(int)
     wall, cpu = [], []

@@ -42,8 +42,7 @@ def main() -> None:
         config = load_sim_config(config_path)
         result = simulate(config, load_rig(args.rig) if args.rig else None)
         renderer = Renderer(result.scene, None, render_options_from_dict(config.render))
-        job = sequence_job(renderer, result.rig, result.trajectory, capture_times=result.capture_times,
-                           camera_settings=config.cameras, dynamic_scene=result.dynamic)
+        job = sequence_job(renderer, result.rig, result.trajectory, **result.render_inputs())
         route = Path(config_path).stem
         for frame in [f for f in args.frames if 0 <= f < len(result.trajectory)]:
             images = render_frame_images(renderer, job, frame)

@@ -12,6 +12,12 @@ left Jacobian ``V``). Times before the first or after the last sample extrapolat
 twist (``f < 0`` or ``f > 1``): camera offsets of a few tens of ms reach past the ends of the
 trajectory. The trajectory to sample is an argument: the camera-rate one of a simulation, or a dense
 (>= 200 Hz) one where the vehicle simulation provides it.
+
+**Camera poses** (:func:`camera_poses`): a camera on a vibrating bracket is at
+``T_world_body(t) T_body_camera R_mount(t)`` (``attitude.mount_vibration``: rotations sampled with the
+dense trajectory), the bracket's rotation between its samples on the SO(3) geodesic
+``R_a exp(f log(R_a^T R_b))`` (:func:`sample_rotations`). The estimator is handed the nominal
+``T_body_camera`` only: the vibration is an unmodelled perturbation, as on a real truck.
 """
 from __future__ import annotations
 
@@ -23,7 +29,7 @@ from scipy.spatial.transform import Rotation
 from ampc_vo.errors import ConfigError
 from ampc_vo.io.groundtruth import Trajectory
 
-__all__ = ["se3_log", "se3_exp", "interpolate_poses", "sample_poses", "PoseSampler"]
+__all__ = ["se3_log", "se3_exp", "interpolate_poses", "sample_poses", "PoseSampler", "sample_rotations", "camera_poses"]
 
 _SMALL_ANGLE = 1e-6
 
@@ -127,3 +133,32 @@ class PoseSampler:
         exact = fraction == 0.0
         result[exact] = self.poses[index[exact]]
         return result
+
+
+def sample_rotations(timestamps: np.ndarray, rotations: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotations sampled at ``rotations`` (F, 3, 3) over increasing ``timestamps`` (F,),
+    at ``times`` (N,): the geodesic ``R_a exp(f log(R_a^T R_b))`` between neighbouring samples, the
+    first or last segment extrapolated beyond the ends (module docstring)."""
+    timestamps = np.asarray(timestamps, float)
+    rotations = np.asarray(rotations, float)
+    times = np.asarray(times, float).reshape(-1)
+    if len(timestamps) != len(rotations) or len(timestamps) == 0:
+        raise ConfigError(f"sample_rotations: {len(rotations)} rotations for {len(timestamps)} timestamps")
+    if len(timestamps) == 1:
+        return np.repeat(rotations[:1], len(times), axis=0)
+    index = np.clip(np.searchsorted(timestamps, times, side="right") - 1, 0, len(timestamps) - 2)
+    fraction = (times - timestamps[index]) / (timestamps[index + 1] - timestamps[index])
+    first = rotations[index]
+    relative = Rotation.from_matrix(np.transpose(first, (0, 2, 1)) @ rotations[index + 1]).as_rotvec()
+    return first @ Rotation.from_rotvec(fraction[:, None] * relative).as_matrix()
+
+
+def camera_poses(T_world_body: np.ndarray, T_body_camera: np.ndarray, R_mount: np.ndarray | None = None) -> np.ndarray:
+    """``T_world_camera = T_world_body T_body_camera (R_mount, 0)`` (N, 4, 4) for body poses (N, 4, 4)
+    and optional bracket rotations (N, 3, 3) about the camera's own axes (module docstring)."""
+    poses = np.asarray(T_world_body, float) @ np.asarray(T_body_camera, float)
+    if R_mount is None:
+        return poses
+    poses = poses.copy()
+    poses[:, :3, :3] = poses[:, :3, :3] @ R_mount
+    return poses

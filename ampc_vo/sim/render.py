@@ -857,13 +857,20 @@ class SequenceJob:
     amplification: dict[str, np.ndarray]  # per camera (F,) exposure x gain (auto exposure)
     dynamic_scene: Any               # None or an object with quads_at(time, camera) -> list[Quad]
     out_dir: Path
+    mount_vibration: dict[str, np.ndarray] | None = None  # per camera (N, 3, 3) over pose_trajectory's samples
 
 
 def _camera_pose_at(job: SequenceJob, camera: Camera):
-    from ampc_vo.sim.motion import sample_poses
+    """``times -> T_world_camera``: the body pose at each time on the camera's vibrating mount
+    (``sim.motion.camera_poses``, DESIGN 6)."""
+    from ampc_vo.sim.motion import camera_poses, sample_poses, sample_rotations
+
+    mount = (job.mount_vibration or {}).get(camera.name)
 
     def pose_at(times: np.ndarray) -> np.ndarray:
-        return sample_poses(job.pose_trajectory, camera.body, np.asarray(times, float)) @ camera.T_body_camera
+        times = np.asarray(times, float)
+        R_mount = None if mount is None else sample_rotations(job.pose_trajectory.timestamps, mount, times)
+        return camera_poses(sample_poses(job.pose_trajectory, camera.body, times), camera.T_body_camera, R_mount)
     return pose_at
 
 
@@ -986,7 +993,8 @@ def metered_amplification(renderer: Renderer, job: SequenceJob) -> dict[str, np.
 
 
 def sequence_job(renderer: Renderer, rig: Rig, trajectory: Any, out_dir: str | Path = ".", capture_times: dict[str, np.ndarray] | None = None,
-                 camera_settings: Any = None, pose_trajectory: Any = None, dynamic_scene: Any = None) -> SequenceJob:
+                 camera_settings: Any = None, pose_trajectory: Any = None, dynamic_scene: Any = None,
+                 mount_vibration: dict[str, np.ndarray] | None = None) -> SequenceJob:
     """Everything the frames of a sequence need (arguments as :func:`render_sequence`), with the
     auto exposure metered over the whole sequence (:func:`metered_amplification`)."""
     from ampc_vo.sim.camera_settings import CameraSettingsTable, settings_for
@@ -999,21 +1007,23 @@ def sequence_job(renderer: Renderer, rig: Rig, trajectory: Any, out_dir: str | P
     frame_times = np.asarray(trajectory.timestamps, float)
     job = SequenceJob(rig, trajectory, trajectory if pose_trajectory is None else pose_trajectory,
                       {camera.name: np.asarray((capture_times or {}).get(camera.name, frame_times), float) for camera in rig.cameras},
-                      tuple(settings), {}, dynamic_scene, Path(out_dir))
+                      tuple(settings), {}, dynamic_scene, Path(out_dir), mount_vibration)
     return dataclasses.replace(job, amplification=metered_amplification(renderer, job))
 
 
 def render_sequence(out_dir: str | Path, rig: Rig, trajectory: Any, scene: Scene,
                     options: RenderOptions | None = None, progress: bool = True,
                     renderer: Renderer | None = None, capture_times: dict[str, np.ndarray] | None = None,
-                    camera_settings: Any = None, pose_trajectory: Any = None, dynamic_scene: Any = None) -> list[list[str]]:
+                    camera_settings: Any = None, pose_trajectory: Any = None, dynamic_scene: Any = None,
+                    mount_vibration: dict[str, np.ndarray] | None = None) -> list[list[str]]:
     """Render every camera at every frame of ``trajectory`` into ``out_dir/images/<camera>/<frame:06d>.png``.
 
     ``trajectory`` needs ``timestamps`` (F,) and ``pose(body)`` -> (F, 4, 4) (``io.groundtruth.Trajectory``).
     Each camera's image is captured at its ``capture_times`` (default: the frame times) and formed
     by ``sim.camera_effects.form_image`` (rolling shutter, motion blur, auto exposure, vignetting,
     noise) with its settings from ``camera_settings`` (a ``CameraSettingsTable``; default: ideal);
-    poses between samples are interpolated from ``pose_trajectory`` (default ``trajectory``).
+    poses between samples are interpolated from ``pose_trajectory`` (default ``trajectory``), each
+    camera on its vibrating mount where ``mount_vibration`` gives its rotations over those samples.
     ``dynamic_scene.quads_at(time, camera)`` adds moving quads (traffic, the trailer body).
     Frames are spread over ``options.processes`` worker processes (spawned: forking a process whose
     OpenCV thread pool has run deadlocks the children). Returns the relative image
@@ -1026,7 +1036,7 @@ def render_sequence(out_dir: str | Path, rig: Rig, trajectory: Any, scene: Scene
     renderer = renderer or Renderer(scene, None, options)
     for camera in rig.cameras:  # precompute rays once (the workers receive them with the renderer)
         renderer.rays_of(camera)
-    job = sequence_job(renderer, rig, trajectory, out_dir, capture_times, camera_settings, pose_trajectory, dynamic_scene)
+    job = sequence_job(renderer, rig, trajectory, out_dir, capture_times, camera_settings, pose_trajectory, dynamic_scene, mount_vibration)
     frames = range(len(trajectory))
     processes = max(1, min(options.processes, os.cpu_count() or 1, len(frames)))
     bar = None

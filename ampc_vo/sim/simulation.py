@@ -286,7 +286,7 @@ def _select_tracks(
 def simulate_measurements(
     trajectory: Trajectory, rig: Rig, landmarks: LandmarkSet, scene: Scene, config: SimulationConfig, rng: np.random.Generator,
     capture_times: dict[str, np.ndarray] | None = None, pose_trajectory: Trajectory | None = None,
-    dynamic: "DynamicScene | None" = None,
+    dynamic: "DynamicScene | None" = None, mount_vibration: dict[str, np.ndarray] | None = None,
 ) -> Measurements:
     """Tracks of every camera over the trajectory (module docstring).
 
@@ -298,14 +298,18 @@ def simulate_measurements(
     with the pose at the time of its own row), and tracks leaving the image that way are dropped.
     Cross-camera associations are only those a stereo matcher could find (``sim.associations``).
     ``dynamic`` (``sim.traffic``): moving bodies whose surface landmarks are tracked too (ids after
-    the static ones) and whose faces hide what lies behind them.
+    the static ones) and whose faces hide what lies behind them. ``mount_vibration`` (per camera,
+    (N, 3, 3) over ``pose_trajectory``'s samples, ``attitude.mount_vibration``): each camera is
+    projected from its vibrating mount ``T_world_body T_body_camera R_mount`` at every capture and
+    row time (``motion.camera_poses``); the measurements' rig keeps the nominal mounts.
     """
     from ampc_vo.sim.associations import association_ids, overlap_groups
     from ampc_vo.sim.camera_timing import project_rolling_shutter
-    from ampc_vo.sim.motion import PoseSampler
+    from ampc_vo.sim.motion import PoseSampler, camera_poses, sample_rotations
 
     pose_trajectory = trajectory if pose_trajectory is None else pose_trajectory
     samplers = {body: PoseSampler.of(pose_trajectory, body) for body in {camera.body for camera in rig.cameras}}
+    mounts = mount_vibration or {}
     capture_times = capture_times or {}
     frame_times = np.asarray(trajectory.timestamps, float)
     tree = cKDTree(landmarks.points)
@@ -320,7 +324,9 @@ def simulate_measurements(
             capture = float(camera_timestamps[frame, camera_index])
 
             def pose_at(times: np.ndarray, camera=camera) -> np.ndarray:
-                return samplers[camera.body](times) @ camera.T_body_camera
+                mount = mounts.get(camera.name)
+                R_mount = None if mount is None else sample_rotations(pose_trajectory.timestamps, mount, times)
+                return camera_poses(samplers[camera.body](times), camera.T_body_camera, R_mount)
 
             middle = capture + 0.5 * camera.readout_time
             T_world_camera = pose_at(np.array([middle]))[0]
@@ -451,8 +457,15 @@ class SimulationResult:
     capture_times: dict[str, np.ndarray] | None = None  # per camera (F,) seconds (``camera_timing.capture_times``)
     dynamic: "DynamicScene | None" = None                # traffic and the trailer box (``sim.traffic``)
     # per camera name, (N_dense, 3, 3) vibration of its mount over dense_trajectory's samples
-    # (``T_body_camera @ R_mount``; attitude.mount_vibration), for the camera side to apply
+    # (``T_body_camera @ R_mount``; attitude.mount_vibration), applied to the bearings and images
     mount_vibration: dict[str, np.ndarray] | None = None
+
+    def render_inputs(self) -> dict:
+        """The keyword arguments of ``render.render_sequence`` / ``render.sequence_job`` that make the
+        images show this simulation's world as the bearings do: capture times, camera settings, the
+        dense poses, the moving bodies and the mount vibration."""
+        return {"capture_times": self.capture_times, "camera_settings": self.config.cameras, "pose_trajectory": self.dense_trajectory,
+                "dynamic_scene": self.dynamic, "mount_vibration": self.mount_vibration}
 
 
 def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> SimulationResult:
@@ -472,8 +485,9 @@ def simulate(config: SimulationConfig | str | Path, rig: Rig | None = None) -> S
                                   route_centerline(trajectory.T_world_tractor, config.scene.extension_m),
                                   config.scene.landmark_density_facade, np.random.default_rng([config.seed, 17]),
                                   pose_trajectory=dense, road=None if road.is_flat else road)
-    measurements = simulate_measurements(trajectory, rig, landmarks, scene, config, rng, capture_times, pose_trajectory=dense, dynamic=dynamic)
     mounts = mount_vibration(rig, dense, config.vehicle, np.random.default_rng([config.seed, 23])) if config.vehicle.moves_bodies else None
+    measurements = simulate_measurements(trajectory, rig, landmarks, scene, config, rng, capture_times, pose_trajectory=dense, dynamic=dynamic,
+                                         mount_vibration=mounts)
     return SimulationResult(config, rig, trajectory, scene, landmarks, measurements, dense_trajectory=dense, road=road, body_angles=angles,
                             capture_times=capture_times, dynamic=dynamic, mount_vibration=mounts)
 
@@ -562,8 +576,7 @@ def simulate_dataset(config: SimulationConfig | str | Path, out_dir: str | Path,
 
             options = render_options_from_dict(result.config.render, f"{result.config.source}: render")
             render_sequence(out_dir, result.rig, result.trajectory, result.scene, options=options, progress=progress,
-                            capture_times=result.capture_times, camera_settings=result.config.cameras,
-                            pose_trajectory=result.dense_trajectory, dynamic_scene=result.dynamic)
+                            **result.render_inputs())
             images_written = True
     write_dataset(out_dir, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory,
                   measurements=result.measurements, with_images=images_written,

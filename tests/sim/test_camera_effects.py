@@ -18,6 +18,7 @@ from ampc_vo.sim.camera_settings import CameraSettings, CameraSettingsTable
 from ampc_vo.sim.render import Renderer, render_sequence
 from ampc_vo.sim.scene import Quad, Scene
 from ampc_vo.sim.textures import build_atlas, load_textures
+from sim_support import facing_marker
 
 
 @pytest.fixture(scope="module")
@@ -69,11 +70,7 @@ def test_auto_exposure_reacts_to_a_tunnel_with_its_time_constant():
 
 
 def _marker(centre: np.ndarray, normal: np.ndarray, size: float = 1.2) -> Quad:
-    normal = normal / np.linalg.norm(normal)
-    axis_u = np.cross(np.array([0.0, 0.0, 1.0]), normal)
-    axis_u /= np.linalg.norm(axis_u)
-    axis_v = np.cross(normal, axis_u)
-    return Quad(centre - 0.5 * size * (axis_u + axis_v), axis_u, axis_v, size, size, "marker", "marker", size)
+    return facing_marker(centre, normal, size)
 
 
 def _arc_pose(t: np.ndarray, speed: float = 12.0, yaw_rate: float = 0.8) -> np.ndarray:
