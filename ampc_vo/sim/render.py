@@ -473,6 +473,96 @@ class VisibilityBuffer:
     texture_t: np.ndarray
     cos_incidence: np.ndarray
     quads: "PreparedQuads"
+    shade: np.ndarray | None = None  # (H, W) brightness factor of the relief's slopes (None: none in view)
+
+
+_RELIEF_RANGE_M = 60.0      # beyond, a bump of a few cm is below a pixel: the quad's plane is kept
+_RELIEF_MARCH_STEPS = 8     # samples of the ray's bracket before the false-position refinement
+_RELIEF_REFINE_STEPS = 4
+_RELIEF_MIN_APPROACH = 1e-3  # |rate| at which a ray nears the plane below which it is left on the plane
+_POTHOLE_DARKENING = 0.35   # a pothole's floor is this much darker (exposed, dirty aggregate)
+
+
+@dataclass(frozen=True)
+class ReliefHits:
+    """Pixels (flat image indices) whose ray meets the relief (bumps, potholes) on a horizontal quad:
+    the ray distance there and the brightness factor of the surface's local slope."""
+
+    pixels: np.ndarray
+    depth: np.ndarray
+    shade: np.ndarray
+
+
+def relief_hits(bumps: Sequence[Any], camera_position: np.ndarray, rays_world: np.ndarray, depth: np.ndarray,
+                plane_normal: np.ndarray, pixels: np.ndarray, shadow_darkness: float) -> ReliefHits | None:
+    """First hits of rays with a horizontal quad's plane raised by the relief ``delta(x, y)``
+    (``road.relief_height``; DESIGN 6), for the pixels ``pixels`` (K,) whose rays ``rays_world``
+    (K, 3, unit) hit that plane (world normal ``plane_normal`` (K, 3), upwards) at ``depth`` (K,).
+
+    Along the ray ``p(t) = c + t d`` the height above the plane is ``k (t - t0)`` with
+    ``k = (n . d) / n_z`` (< 0 from above), so the hit solves ``f(t) = k (t - t0) - delta(p(t)) = 0``.
+    The relief lies within ``[delta_lo, delta_hi]``: the first root is in ``[t0 + delta_hi / k,
+    t0 + delta_lo / k]``, where ``f`` goes from >= 0 to <= 0. Pixels whose bracket passes no bump
+    are left; the others are marched in ``_RELIEF_MARCH_STEPS`` steps to the first sign change and
+    refined by false position. Shading: the sunlit part of the brightness (``1 - shadow_darkness``)
+    scales with the local normal's ``n . sun`` against the plane's, and a pothole's floor is darker
+    by up to ``_POTHOLE_DARKENING`` of its depth fraction."""
+    from ampc_vo.sim.road import relief_gradient, relief_height
+
+    if not len(bumps) or not len(pixels):
+        return None
+    approach = np.einsum("kj,kj->k", plane_normal, rays_world) / plane_normal[:, 2]
+    usable = (approach < -_RELIEF_MIN_APPROACH) & (depth < _RELIEF_RANGE_M)
+    heights = np.array([bump.height for bump in bumps])
+    high, low = float(np.sum(np.maximum(heights, 0.0))), float(np.sum(np.minimum(heights, 0.0)))
+    safe = np.where(usable, approach, -1.0)
+    t_start, t_stop = depth + high / safe, depth + low / safe
+    start = camera_position[:2] + t_start[:, None] * rays_world[:, :2]
+    segment = (t_stop - t_start)[:, None] * rays_world[:, :2]
+    near = np.zeros(len(pixels), bool)
+    for bump in bumps:  # distance of the bump's centre from the bracket's xy segment
+        relative = np.asarray(bump.center) - start
+        along = np.clip(np.einsum("kj,kj->k", relative, segment) / np.maximum(np.einsum("kj,kj->k", segment, segment), 1e-12), 0.0, 1.0)
+        near |= np.linalg.norm(relative - along[:, None] * segment, axis=1) <= 0.5 * math.hypot(bump.length, bump.width) + 1e-3
+    chosen = np.flatnonzero(usable & near)
+    if chosen.size == 0:
+        return None
+    c, d, k, t0 = camera_position, rays_world[chosen], approach[chosen], depth[chosen]
+
+    def residual(t: np.ndarray) -> np.ndarray:  # f(t) for t (K,) or (K, S)
+        shape = t.shape
+        t = t.reshape(len(chosen), -1)
+        xy = c[:2] + t[..., None] * d[:, None, :2]
+        return (k[:, None] * (t - t0[:, None]) - relief_height(bumps, xy.reshape(-1, 2)).reshape(t.shape)).reshape(shape)
+
+    fractions = np.linspace(0.0, 1.0, _RELIEF_MARCH_STEPS + 1)
+    samples = t_start[chosen, None] + fractions[None, :] * (t_stop - t_start)[chosen, None]            # (K, S)
+    values = residual(samples)
+    values[:, -1] = np.minimum(values[:, -1], 0.0)
+    first = np.argmax(values <= 0.0, axis=1)                                                         # first sample at or below
+    rows = np.arange(len(chosen))
+    upper = np.maximum(first - 1, 0)
+    a, b = samples[rows, upper], samples[rows, first]
+    fa, fb = values[rows, upper], values[rows, first]
+    for _ in range(_RELIEF_REFINE_STEPS):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(fa - fb > 1e-12, a + fa * (b - a) / (fa - fb), b)
+        ft = residual(t)
+        above = ft > 0.0
+        a, fa = np.where(above, t, a), np.where(above, ft, fa)
+        b, fb = np.where(above, b, t), np.where(above, fb, ft)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(fa - fb > 1e-12, a + fa * (b - a) / (fa - fb), b)
+    xy = c[:2] + t[:, None] * d[:, :2]
+    n = plane_normal[chosen]
+    slope = -n[:, :2] / n[:, 2:3] + relief_gradient(bumps, xy)
+    local = np.column_stack([-slope, np.ones(len(chosen))])
+    local /= np.linalg.norm(local, axis=1, keepdims=True)
+    lit = np.maximum(local @ _SUN_DIRECTION, 0.0) / np.maximum(n @ _SUN_DIRECTION, 1e-3)
+    shade = shadow_darkness + (1.0 - shadow_darkness) * lit
+    if low < 0.0:
+        shade *= 1.0 - _POTHOLE_DARKENING * np.clip(relief_height(bumps, xy) / low, 0.0, 1.0)
+    return ReliefHits(pixels[chosen], t.astype(np.float32), shade.astype(np.float32))
 
 
 # ---------------------------------------------------------------------- the renderer
@@ -487,6 +577,7 @@ class Renderer:
         self.atlas = textures if isinstance(textures, TextureAtlas) else build_atlas(textures)
         self.quads = prepare_quads(merge_collinear_strips(scene.quads), self.atlas, self.options)
         self.shadows = shadow_map(scene.quads, _SUN_DIRECTION) if self.options.shadows else None
+        self.relief = tuple(scene.relief)  # bumps and potholes added to the horizontal quads per pixel (relief_hits)
         self._rays: dict[tuple, CameraRays] = {}
         self._bodies: dict[tuple, tuple] = {}  # moving bodies' faces prepared in their own frames
         self.last_stats: dict[str, int] = {}  # work of the last depth pass (candidates, quads and ray tests)
@@ -657,6 +748,12 @@ class Renderer:
         shape = (camera.height, camera.width)
         depth_image = depth.ravel()[order].reshape(shape)
         id_image = quad_id.ravel()[order].reshape(shape)
+        relief = self._relief_in_view(rays, R_world_camera, camera_position, depth_image, id_image, quads)
+        shade = None
+        if relief is not None:
+            depth_image.ravel()[relief.pixels] = relief.depth
+            shade = np.ones(shape, np.float32)
+            shade.ravel()[relief.pixels] = relief.shade
         # Surface coordinates and incidence of the winning quad, per pixel (one gather of its constants).
         # Surface and texture coordinates and incidence of the winning quad, per pixel, on whole-image
         # arrays (sky pixels use quad 0 at distance 0 and are ignored by the shading).
@@ -679,7 +776,24 @@ class Renderer:
         texture_s = column[14] * coord_a + column[15] * coord_b + column[16]
         texture_t = column[17] * coord_a + column[18] * coord_b + column[19]
         cos_incidence = np.abs(d_n)
-        return VisibilityBuffer(depth_image, id_image, coord_a, coord_b, texture_s, texture_t, cos_incidence, quads)
+        return VisibilityBuffer(depth_image, id_image, coord_a, coord_b, texture_s, texture_t, cos_incidence, quads, shade)
+
+    def _relief_in_view(self, rays: CameraRays, R_world_camera: np.ndarray, camera_position: np.ndarray, depth_image: np.ndarray,
+                        id_image: np.ndarray, quads: PreparedQuads) -> ReliefHits | None:
+        """:func:`relief_hits` for the scene's bumps within reach of the camera, on the pixels that
+        see a horizontal quad."""
+        bumps = [bump for bump in self.relief
+                 if np.hypot(*(np.asarray(bump.center) - camera_position[:2])) < _RELIEF_RANGE_M + max(bump.length, bump.width)]
+        if not bumps:
+            return None
+        flat_ids = id_image.ravel()
+        pixels = np.flatnonzero((flat_ids >= 0) & (depth_image.ravel() < _RELIEF_RANGE_M))
+        pixels = pixels[quads.horizontal[flat_ids[pixels]]]
+        if pixels.size == 0:
+            return None
+        rays_world = (R_world_camera @ rays.rays_planes.reshape(3, -1)[:, pixels].astype(np.float64)).T
+        return relief_hits(bumps, camera_position, rays_world, depth_image.ravel()[pixels].astype(np.float64),
+                           quads.normal[flat_ids[pixels]], pixels, self.options.shadow_darkness)
 
     # ------------------------------------------------------------------ shading
     def render_float(self, camera: Camera, T_world_camera: np.ndarray, extra_quads: Sequence[Quad] = ()) -> np.ndarray:
@@ -767,6 +881,8 @@ class Renderer:
                 samples.append(cv2.remap(atlas.image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
             surface = samples[0] + fraction * (samples[1] - samples[0])
             surface *= gain
+            if visible.shade is not None:  # slopes of bumps and potholes
+                surface *= visible.shade
             road = np.flatnonzero(hit & (road_flag > 0))
             if road.size:
                 along = visible.coord_a.ravel()[road] + road_along.ravel()[road]

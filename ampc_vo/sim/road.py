@@ -64,6 +64,23 @@ class Bump:
         return np.where(inside, self.height * 0.5 * (1.0 + np.cos(np.pi * u)) * np.cos(0.5 * np.pi * w) ** 2, 0.0)
 
 
+def relief_height(bumps: "tuple[Bump, ...] | list[Bump]", xy: np.ndarray) -> np.ndarray:
+    """Summed height (N,) of bumps and potholes at world points (N, 2) (the relief the renderer adds
+    to the road's quads, ``render.relief_hits``)."""
+    height = np.zeros(len(xy))
+    for bump in bumps:
+        height = height + bump.height_at(xy)
+    return height
+
+
+def relief_gradient(bumps: "tuple[Bump, ...] | list[Bump]", xy: np.ndarray) -> np.ndarray:
+    """Gradient (N, 2) of :func:`relief_height` by central differences (``_NORMAL_STEP_M``)."""
+    step = _NORMAL_STEP_M
+    dx, dy = np.array([step, 0.0]), np.array([0.0, step])
+    return np.column_stack([relief_height(bumps, xy + dx) - relief_height(bumps, xy - dx),
+                            relief_height(bumps, xy + dy) - relief_height(bumps, xy - dy)]) / (2.0 * step)
+
+
 @dataclass(frozen=True)
 class RoadProfile:
     """Vertical and cross-section design of a road along its centre line (module docstring)."""
@@ -172,9 +189,7 @@ class RoadSurface:
             station, lateral, curvature = self.centerline.station_offset(flat)
             lateral = np.clip(lateral, -self.edge_m, self.edge_m)
             height = height + self.profile.elevation(station) + self.profile.cross_section(lateral, curvature)
-        for bump in self.bumps:
-            height = height + bump.height_at(flat)
-        return height.reshape(shape)
+        return (height + relief_height(self.bumps, flat)).reshape(shape)
 
     def normal(self, xy: np.ndarray) -> np.ndarray:
         """Unit upward normals (N, 3) by central differences of :meth:`height`."""

@@ -6,6 +6,7 @@ their textures.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -17,7 +18,7 @@ logger = logging.getLogger(__name__)
 if TYPE_CHECKING:  # pragma: no cover
     from ampc_vo.io.groundtruth import Trajectory
     from ampc_vo.sim.config import SceneConfig
-    from ampc_vo.sim.road import Centerline2D, RoadSurface
+    from ampc_vo.sim.road import Bump, Centerline2D, RoadSurface
 
 QUAD_KINDS = ("road", "ground", "facade", "box", "pole", "marker")
 
@@ -52,9 +53,11 @@ class Quad:
 
 @dataclass(frozen=True)
 class Scene:
-    """All quads of a simulated world."""
+    """All quads of a simulated world, and the bumps and potholes (``road.Bump``) that the renderer
+    adds to the heights of its horizontal road and ground quads (``relief``, DESIGN 6)."""
 
     quads: tuple[Quad, ...]
+    relief: "tuple[Bump, ...]" = ()
 
 
 # ---------------------------------------------------------------------- procedural scene along a route
@@ -280,8 +283,13 @@ def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "Sce
     shoulders and a grass band of ``ground_margin_m`` on each side are tilted strips on the surface
     (:func:`_strip_quads`), centred on the road's centre (``road.lane_offset_m`` left of the path);
     the large grass plane lies 1 m below the lowest point, and facades and objects stand on the
-    terrain (sunk 0.5 m so that no gap shows on a slope).
+    terrain (sunk 0.5 m so that no gap shows on a slope). Bumps and potholes are not in the quads:
+    they are the scene's ``relief``, which the renderer adds per pixel (the strips follow the road
+    without them).
     """
+    relief = tuple(road.bumps) if road is not None else ()
+    if road is not None and road.bumps:
+        road = dataclasses.replace(road, bumps=())
     if road is not None and road.is_flat:
         road = None
     from scipy.spatial import cKDTree
@@ -368,4 +376,4 @@ def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "Sce
                 object_count += 1
             s += config.object_spacing * float(rng.uniform(0.7, 1.3))
     logger.info("scene: %d quads (%d facades, %d objects) along %.0f m", len(quads), facade_count, object_count, total)
-    return Scene(tuple(quads))
+    return Scene(tuple(quads), relief)
