@@ -145,6 +145,7 @@ class CameraRays:
     tile_sin_half: np.ndarray   # (T,) float32 sin(min(half angle, 90 deg))
     tile_beyond_90: np.ndarray  # (T,) bool: some ray of the tile may point behind the lens plane
     tile_col: np.ndarray        # (T,) tile grid column
+    tile_rays: np.ndarray       # (T, P, 3) float32 the rays of tile_planes interleaved (one cv2.transform per quad)
 
 
 def camera_rays(camera: Camera, tile_size: int = 16) -> CameraRays:
@@ -180,6 +181,7 @@ def camera_rays(camera: Camera, tile_size: int = 16) -> CameraRays:
     return CameraRays(
         pixel_index=pixel_index, image_order=image_order,
         tile_planes=np.ascontiguousarray(tile_rays.transpose(2, 0, 1)).astype(np.float32),
+        tile_rays=np.ascontiguousarray(tile_rays, dtype=np.float32),
         tile_axis=axis, tile_half_angle=half_angle, pixel_angle=pixel_angle.astype(np.float32),
         valid=valid,
         rays_planes=np.ascontiguousarray(rays.reshape(height, width, 3).transpose(2, 0, 1)).astype(np.float32),
@@ -711,6 +713,7 @@ class Renderer:
             nearest = np.linalg.norm(centre[candidates], axis=1) - quads.radius[candidates]
             order = np.argsort(nearest)
             axes_c = np.stack([n_c, u_c, v_c], axis=2).astype(np.float32)  # (Q, 3, 3): columns n, u, v
+            frames = np.ascontiguousarray(np.transpose(axes_c, (0, 2, 1)))  # (Q, 3, 3): rows n, u, v
             plane = np.einsum("qk,qkj->qj", origin_c, np.stack([n_c, u_c, v_c], axis=2))  # o.n, o.u, o.v
             plane_n = plane[:, 0].astype(np.float32)
             half_w, half_h = (0.5 * quads.width).astype(np.float32), (0.5 * quads.height).astype(np.float32)
@@ -725,16 +728,14 @@ class Renderer:
                     continue
                 tested_quads += 1
                 tested_pixels += tiles.size * tile_pixels
-                ray_x, ray_y, ray_z = rays.tile_planes[0][tiles], rays.tile_planes[1][tiles], rays.tile_planes[2][tiles]
-                n_x, n_y, n_z = axes_c[q, :, 0]
+                # ray components along the quad's n, u, v in one pass (cv2.transform: rows of frames[q])
+                along = cv2.transform(rays.tile_rays[tiles].reshape(-1, 1, 3), frames[q]).reshape(tiles.size, tile_pixels, 3)
                 with np.errstate(divide="ignore", invalid="ignore"):
-                    t = plane_n[q] / (ray_x * n_x + ray_y * n_y + ray_z * n_z)
+                    t = plane_n[q] / along[..., 0]
                 current = depth[tiles]
                 hit = (t > _MIN_HIT_DISTANCE) & (t < current)
-                u_x, u_y, u_z = axes_c[q, :, 1]
-                hit &= np.abs(t * (ray_x * u_x + ray_y * u_y + ray_z * u_z) - centre_u[q]) <= half_w[q]
-                v_x, v_y, v_z = axes_c[q, :, 2]
-                hit &= np.abs(t * (ray_x * v_x + ray_y * v_y + ray_z * v_z) - centre_v[q]) <= half_h[q]
+                hit &= np.abs(t * along[..., 1] - centre_u[q]) <= half_w[q]
+                hit &= np.abs(t * along[..., 2] - centre_v[q]) <= half_h[q]
                 if not hit.any():
                     continue
                 np.copyto(current, t, where=hit)
