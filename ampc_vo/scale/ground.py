@@ -47,6 +47,19 @@ consensus set (re-selected a few times); its sigma is the formal one inflated by
 road-normal uncertainty (``normal_sigma``), propagated through (G) with the normal n in place of
 ``e_z`` (``w = (n + (f.n) (f - k g) / (1 - k²) + (g.n) (k f - g) / (1 - k²)) / 2``).
 
+**Road plane** (issue 16; ``fit_plane``, the default). The plane (G) measures from is estimated
+from the road points instead of trusted: a body pitch of 0.3-3° (braking, a grade change under the
+axles) or a crown tilts the road seen from the cameras, and (G) with the calibrated normal is off
+by ``D δ / h`` (below). The normal is ``n(a, b) ∝ (tan a, tan b, 1)`` (tilts about body y and x);
+the camera's distance to the plane stays the calibrated height (the metric reference). In
+inverse chords ``q_k(n) = 1 / rho_k(n)`` (the unit-scale point's distance to the plane over the
+camera's: nearly linear in the bearings, ``rho_k`` is skewed for far points) every road point
+says ``q_k(n) = q``; the fit minimises ``sum ((q - q_k(n)) / sigma_q,k)² + |(a, b)|² / sigma_n²``
+(the calibrated normal a prior, ``normal_prior_sigma`` 2°) by Gauss-Newton, starting from the best
+of a few pitch hypotheses (1-D MSAC per hypothesis) and re-selecting the inliers at each plane.
+The chord's sigma is its marginal (the tilt's uncertainty included), Birge-inflated, with the
+height term. ``fit_plane=False``: the calibrated plane, ``normal_sigma`` widening its sigma.
+
 **Sensitivities** (what the measurement trusts). A road normal off by δ (e.g. an uncalibrated
 camera pitch) biases the chord by about ``D δ / h`` for road points at distance D: 1° at 10 m and
 1.65 m height is ~10 %, so the cameras' pitch relative to the road must be calibrated in the rig
@@ -57,6 +70,7 @@ squares with that common error (:func:`_combine_cameras`). The camera height ent
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -101,7 +115,14 @@ class GroundScaleOptions:
     consistent with a horizontal plane too). ``lowest_plane_support``: hypotheses with at least this
     fraction of the best support compete, and the lowest plane (smallest chord) among them wins.
     ``refine_rounds``: inlier re-selections around the weighted mean. ``normal_sigma``: uncertainty (radians) of the road normal about the body z axis (pitch and roll
-    of the cameras relative to the road: calibration, load, braking), propagated into the sigma.
+    of the cameras relative to the road: calibration, load, braking), propagated into the sigma of
+    the calibrated-plane chord (``fit_plane`` off; the fitted plane's sigma carries its own).
+    ``fit_plane``: estimate the road plane's normal from the road points (module docstring, "Road
+    plane"), the calibrated normal (body z) a prior of ``normal_prior_sigma`` (radians) per axis;
+    ``normal_search``: the tilt hypotheses (radians, about the body y and x axes) the consensus
+    starts from (default: the calibrated plane only; a grid lets wall points below the horizon
+    buy a tilted "road" with their support); ``plane_rounds``: Gauss-Newton steps and inlier
+    re-selections of the plane fit.
     """
 
     ground_z: float = 0.0
@@ -116,6 +137,18 @@ class GroundScaleOptions:
     lowest_plane_support: float = 0.5
     refine_rounds: int = 3
     normal_sigma: float = 0.0
+    fit_plane: bool = True
+    normal_prior_sigma: float = np.deg2rad(2.0)
+    normal_search: tuple[tuple[float, ...], tuple[float, ...]] = (tuple(np.deg2rad([-3.0, -1.5, 0.0, 1.5, 3.0])), (0.0,))
+    plane_rounds: int = 6
+
+
+def tilted_normal(tilt: np.ndarray) -> np.ndarray:
+    """Unit road normal (body frame) ``(tan a, tan b, 1) / norm`` of a tilt ``(a, b)`` (radians): the
+    road rising by ``tan a`` per metre along body x and ``tan b`` along body y (body pitched down /
+    rolled relative to the road; ``(0, 0)``: the calibrated normal e_z)."""
+    normal = np.array([np.tan(tilt[0]), np.tan(tilt[1]), 1.0])
+    return normal / np.linalg.norm(normal)
 
 
 @dataclass(frozen=True)
@@ -137,7 +170,15 @@ class PointChords:
 
     def chords_for_yaw(self, yaw_error: float) -> np.ndarray:
         """(G) of every correspondence if the motion's yaw change were ``yaw_error`` larger."""
-        return self.chord if self.rays is None else self.rays.chords(yaw_error=yaw_error)
+        return self.chord if self.rays is None else self.rays.chords(normal=self.rays.normal, yaw_error=yaw_error)
+
+    def with_normal(self, normal: np.ndarray) -> PointChords:
+        """The same correspondences measured from a road plane with ``normal`` (body frame, unit):
+        ``chord`` and later yaw re-evaluations use it."""
+        if self.rays is None:
+            return self
+        rays = dataclasses.replace(self.rays, normal=np.asarray(normal, dtype=float))
+        return dataclasses.replace(self, chord=rays.chords(normal=rays.normal), rays=rays)
 
 
 @dataclass(frozen=True)
@@ -151,6 +192,7 @@ class _Rays:
     baseline0: np.ndarray
     direction: np.ndarray
     offset: np.ndarray
+    normal: np.ndarray = dataclasses.field(default_factory=lambda: _E_Z.copy())  # the road normal ``chord`` was evaluated with
 
     def chords(self, normal: np.ndarray | None = None, yaw_error: float = 0.0) -> np.ndarray:
         """(G) with a road ``normal`` (default body z) and the motion's yaw change increased by
@@ -332,6 +374,107 @@ def _normal_variance(per_camera: Sequence[PointChords], inliers: np.ndarray, sig
     return variance
 
 
+@dataclass(frozen=True)
+class PlaneFit:
+    """The road plane fitted to the road points (module docstring, "Road plane"): ``tilt`` (2,)
+    radians (:func:`tilted_normal`), the ``chord`` (m) measured from it, its marginal
+    ``chord_variance`` (bearing noise and the tilt's uncertainty under its prior, Birge-inflated),
+    ``tilt_variance``: the part of it the tilt's uncertainty adds, ``birge``: the Birge ratio, and
+    the ``inliers`` mask over the candidates."""
+
+    tilt: np.ndarray
+    chord: float
+    chord_variance: float
+    tilt_variance: float
+    birge: float
+    inliers: np.ndarray
+
+
+def _candidate_chords(per_camera: Sequence[PointChords], tilt: np.ndarray) -> np.ndarray:
+    """(G) of every candidate of every camera for the road tilted by ``tilt``; values that are
+    not a chord (parallel rays, a plane above the ray) become a huge chord no consensus takes."""
+    normal = tilted_normal(tilt)
+    chords = np.concatenate([points.chords_for_normal(normal)[points.candidate] for points in per_camera])
+    return np.where(np.isfinite(chords) & (chords > 0.0), chords, 1e12)
+
+
+def _search_plane(per_camera: Sequence[PointChords], sigmas: np.ndarray, options: GroundScaleOptions) -> tuple[np.ndarray, float, np.ndarray] | None:
+    """The best tilt hypothesis of ``options.normal_search``: 1-D MSAC (:func:`robust_chord`) per
+    tilt, scored by its MSAC cost over all candidates plus the tilt prior ``|tilt|² / sigma²``;
+    ``(tilt, chord, inliers)`` or ``None`` when no hypothesis finds a road."""
+    best: tuple[float, np.ndarray, float, np.ndarray] | None = None
+    threshold = options.consensus_sigmas
+    for pitch in options.normal_search[0]:
+        for roll in options.normal_search[1]:
+            tilt = np.array([pitch, roll])
+            chords = _candidate_chords(per_camera, tilt)
+            consensus = robust_chord(chords, sigmas, options)
+            if consensus is None:
+                continue
+            chord = consensus[0]
+            cost = float(np.sum(np.minimum(((chords - chord) / sigmas) ** 2, threshold**2)) + np.sum((tilt / options.normal_prior_sigma) ** 2))
+            if best is None or cost < best[0]:
+                best = (cost, tilt, chord, consensus[2])
+    return None if best is None else (best[1], best[2], best[3])
+
+
+def _inverse_chords(per_camera: Sequence[PointChords], tilt: np.ndarray) -> np.ndarray:
+    """``1 / rho_k`` of every candidate for the road tilted by ``tilt`` (0 where there is no chord):
+    the unit-scale point's distance to the plane over the camera's, nearly linear in the bearings
+    (``rho_k`` itself, its inverse, is skewed for far points)."""
+    chords = _candidate_chords(per_camera, tilt)
+    return np.where(chords < 1e12, 1.0 / chords, 0.0)
+
+
+def _plane_step(per_camera: Sequence[PointChords], inverse_sigmas: np.ndarray, tilt: np.ndarray, inliers: np.ndarray,
+                prior_sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One Gauss-Newton step of the plane fit on the ``inliers`` in inverse chords: parameters
+    ``x = (q, delta_tilt)`` with ``q = 1 / rho``, rows ``(q - q_k(tilt) - J_k delta) / sigma_q,k``
+    (J: numerical derivative of ``1 / (G)`` in the tilt) and the prior rows
+    ``(tilt + delta) / prior_sigma``. Returns ``(x, normal matrix, data residuals)``."""
+    step = 1e-5
+    values = _inverse_chords(per_camera, tilt)[inliers]
+    jacobian = np.column_stack([(_inverse_chords(per_camera, tilt + step * axis)[inliers] - values) / step for axis in np.eye(2)])
+    weights = 1.0 / inverse_sigmas[inliers]
+    design = np.vstack([np.column_stack([weights, -jacobian * weights[:, None]]), np.column_stack([np.zeros(2), np.eye(2) / prior_sigma])])
+    target = np.concatenate([values * weights, -tilt / prior_sigma])
+    x = np.linalg.lstsq(design, target, rcond=None)[0]
+    residuals = (x[0] - values - jacobian @ x[1:]) * weights
+    return x, design.T @ design, residuals
+
+
+def _plane_inliers(inverse: np.ndarray, inverse_sigmas: np.ndarray, sigmas: np.ndarray, inverse_chord: float, options: GroundScaleOptions) -> np.ndarray:
+    """Road points of a plane with inverse chord ``q``: within ``consensus_sigmas`` of it, and
+    precise enough (``max_relative_point_sigma``)."""
+    return (np.abs(inverse - inverse_chord) < options.consensus_sigmas * inverse_sigmas) & (sigmas * inverse_chord < options.max_relative_point_sigma)
+
+
+def fit_road_plane(per_camera: Sequence[PointChords], sigmas: np.ndarray, options: GroundScaleOptions) -> PlaneFit | None:
+    """Road plane and chord from the candidates of ``per_camera`` (sigmas (N,) over the
+    candidates): the best tilt hypothesis (:func:`_search_plane`), then ``plane_rounds`` of a
+    Gauss-Newton step in inverse chords (:func:`_plane_step`) and inlier re-selection at the new
+    plane (module docstring, "Road plane"). ``None`` when fewer than ``min_points`` road points remain."""
+    found = _search_plane(per_camera, sigmas, options)
+    if found is None:
+        return None
+    tilt, chord, inliers = found
+    inverse_sigmas = sigmas / _candidate_chords(per_camera, np.zeros(2)) ** 2
+    for _ in range(max(options.plane_rounds, 1)):
+        x, normal_matrix, residuals = _plane_step(per_camera, inverse_sigmas, tilt, inliers, options.normal_prior_sigma)
+        tilt = tilt + x[1:]
+        inliers = _plane_inliers(_inverse_chords(per_camera, tilt), inverse_sigmas, sigmas, float(x[0]), options)
+        if np.count_nonzero(inliers) < options.min_points:
+            return None
+    x, normal_matrix, residuals = _plane_step(per_camera, inverse_sigmas, tilt, inliers, options.normal_prior_sigma)
+    tilt, chord = tilt + x[1:], 1.0 / float(x[0])
+    used = int(np.count_nonzero(inliers))
+    birge = max(1.0, float(np.sqrt(np.sum(residuals**2) / max(used - 3, 1))))
+    covariance = np.linalg.inv(normal_matrix) * birge**2
+    conditional = birge**2 / normal_matrix[0, 0]  # the inverse chord's variance if the tilt were known
+    to_chord = chord**4  # d rho / d q = -rho²
+    return PlaneFit(tilt, chord, float(covariance[0, 0] * to_chord), float(max(covariance[0, 0] - conditional, 0.0) * to_chord), birge, inliers)
+
+
 def _formal_sigma(sigmas: np.ndarray) -> float:
     return float(1.0 / np.sqrt(np.sum(1.0 / sigmas**2)))
 
@@ -393,10 +536,18 @@ def ground_plane_chord(
         return GroundChord(GroundScaleStatus.SMALL_BASELINE)
     chords = np.concatenate([points.chord[points.candidate] for points in per_camera])
     sigmas = np.concatenate([points.sigma[points.candidate] for points in per_camera])
-    consensus = robust_chord(chords, sigmas, options)
-    if consensus is None:
-        return GroundChord(GroundScaleStatus.TOO_FEW_GROUND_POINTS, candidates=int(chords.size))
-    chord, statistical_sigma, inliers = consensus
+    plane = fit_road_plane(per_camera, sigmas, options) if options.fit_plane else None
+    if options.fit_plane:
+        if plane is None:
+            return GroundChord(GroundScaleStatus.TOO_FEW_GROUND_POINTS, candidates=int(chords.size))
+        per_camera = [points.with_normal(tilted_normal(plane.tilt)) for points in per_camera]
+        chord, statistical_sigma, inliers = plane.chord, float(np.sqrt(plane.chord_variance - plane.tilt_variance)), plane.inliers
+        logger.debug("road plane tilted %.2f deg (pitch), %.2f deg (roll) from the calibrated one", *np.degrees(plane.tilt))
+    else:
+        consensus = robust_chord(chords, sigmas, options)
+        if consensus is None:
+            return GroundChord(GroundScaleStatus.TOO_FEW_GROUND_POINTS, candidates=int(chords.size))
+        chord, statistical_sigma, inliers = consensus
     ground_xy = np.concatenate([points.ground_xy[points.candidate] for points in per_camera])[inliers]
     spread = float(np.sqrt(max(np.linalg.eigvalsh(np.cov(ground_xy.T))[0], 0.0)))
     if spread < options.min_ground_spread_m:
@@ -410,7 +561,10 @@ def ground_plane_chord(
         mask[np.flatnonzero(points.candidate)] = inliers[offsets[index]:offsets[index + 1]]
         masks.append(mask)
     if yaw_sigma > 0.0:
-        chord, statistical_sigma = _combine_cameras(per_camera, masks, statistical_sigma / _formal_sigma(sigmas[inliers]), yaw_sigma)
+        birge = plane.birge if plane is not None else statistical_sigma / _formal_sigma(sigmas[inliers])
+        chord, statistical_sigma = _combine_cameras(per_camera, masks, birge, yaw_sigma)
     height_relative = options.height_sigma_m / float(np.mean(heights[heights > 0.0]))
-    sigma = float(np.sqrt(statistical_sigma**2 + (chord * height_relative) ** 2 + _normal_variance(per_camera, inliers, sigmas, chord, options)))
+    # the road normal's share: estimated with the plane (its marginal), else the calibrated normal's sigma
+    normal_variance = plane.tilt_variance if plane is not None else _normal_variance(per_camera, inliers, sigmas, chord, options)
+    sigma = float(np.sqrt(statistical_sigma**2 + (chord * height_relative) ** 2 + normal_variance))
     return GroundChord(GroundScaleStatus.OK, chord, sigma, tuple(masks), int(chords.size))
