@@ -246,7 +246,10 @@ class ScaleConfig:
     relative to the road calibrated in the rig; the road plane is z = -``hitch_height`` of rig.yaml in
     the body frame); ``ground_height_sigma_m``: uncertainty of
     the cameras' height above the road (suspension, camber); ``ground_normal_sigma_deg``: of their
-    pitch and roll relative to the road (calibration, load, braking). ``cross_camera``: epipolar
+    pitch and roll relative to the road (calibration, load, braking) when the calibrated plane is used;
+    ``ground_plane_fit``: estimate the road plane's normal from the road points instead (grades,
+    crown, suspension pitch; DESIGN 11), the calibrated normal a prior of
+    ``ground_normal_prior_sigma_deg`` per axis. ``cross_camera``: epipolar
     correspondences between two cameras of one body at different keyframes, associated by
     ``CameraObservations.landmark_ids`` (two-camera GEC: metric scale observable in straight driving),
     up to ``cross_camera_max_gap`` keyframes apart (``max_pair_gap`` in the single-body modes), gated at ``cross_camera_gate_px`` under the
@@ -261,6 +264,8 @@ class ScaleConfig:
     ground_plane: bool = True
     ground_height_sigma_m: float = 0.02
     ground_normal_sigma_deg: float = 0.0
+    ground_plane_fit: bool = True
+    ground_normal_prior_sigma_deg: float = 2.0
     cross_camera: bool = True
     cross_camera_max_gap: int = 6
     cross_camera_gate_px: float = 10.0
@@ -282,6 +287,7 @@ class ScaleConfig:
         _positive(self.wheel_speed_sigma_m, where + "wheel_speed_sigma_m")
         _positive(self.ground_height_sigma_m, where + "ground_height_sigma_m")
         _at_least(self.ground_normal_sigma_deg, 0.0, where + "ground_normal_sigma_deg")
+        _positive(self.ground_normal_prior_sigma_deg, where + "ground_normal_prior_sigma_deg")
         _at_least(self.cross_camera_max_gap, 1, where + "cross_camera_max_gap")
         _positive(self.cross_camera_gate_px, where + "cross_camera_gate_px")
         _positive(self.stereo_max_depth_m, where + "stereo_max_depth_m")

@@ -151,7 +151,8 @@ class MotionInitializer:
         self.use_trailer = rig.has_trailer and config.mode != "tractor_only"
         self._ground_options = GroundScaleOptions(
             ground_z=rig.ground_z, pixel_sigma=config.smoother.pixel_sigma, height_sigma_m=config.scale.ground_height_sigma_m,
-            normal_sigma=float(np.radians(config.scale.ground_normal_sigma_deg)))
+            normal_sigma=float(np.radians(config.scale.ground_normal_sigma_deg)), fit_plane=config.scale.ground_plane_fit,
+            normal_prior_sigma=float(np.radians(config.scale.ground_normal_prior_sigma_deg)))
         self._stereo_options = StereoScaleOptions(pixel_sigma=config.smoother.pixel_sigma, max_depth_m=config.scale.stereo_max_depth_m)
 
     def tractor(self, first: FrameObservations, second: FrameObservations, predicted: np.ndarray, prediction_sigma: float | None = None) -> TractorMotion:

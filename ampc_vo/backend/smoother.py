@@ -466,11 +466,16 @@ class ArticulatedSmoother:
         self._add_stacked_epipolar(epipolar_blocks, pending)
 
     def _initial_hitch(self, keyframe: _Keyframe, pending: _Pending) -> float:
-        """θ_k: the 1-point RANSAC estimate if any, else held (standstill) or predicted by the
+        """θ_k: the window's θ_{k-1} plus the 1-point RANSAC's change of θ over the pair if any, else held (standstill) or predicted by the
         trailer non-holonomic closed form ``ψ = 2 atan2(w_y, w_x + 2 s_B)`` (DESIGN 2)."""
         init = keyframe.init
         previous = self._double(A(keyframe.index - 1), pending)
         if init.hitch is not None and init.trailer_status is MotionStatus.OK:
+            if init.hitch_prev is not None:
+                # the pair measures the change of theta well (the difference of two measured yaws),
+                # its absolute value weakly: composed onto the window's value, the initial trailer
+                # pose stays consistent with the window and the pose gate keeps its correspondences
+                return float(wrap_angle(previous + init.hitch - init.hitch_prev))
             return float(init.hitch)
         if init.tractor_status is MotionStatus.STANDSTILL:
             return previous

@@ -124,7 +124,10 @@ def test_standstill_holds_hitch_and_its_sigma(short_route, caplog):
     still = published[3:]
     hitches = [e.hitch_angle for e in still]
     assert np.ptp(hitches) < np.radians(0.1)
-    assert np.ptp([e.T_world_tractor[0, 3] for e in still]) < 0.02
+    # the window holds the still keyframes together (published ones are causal snapshots of a
+    # window that still settles along its weak scale direction: this unit test has no scale aid)
+    window = [smoother.estimate(index) for index in range(3, len(frames))]
+    assert np.ptp([e.T_world_tractor[0, 3] for e in window]) < 0.005
     sigmas = np.array([e.hitch_sigma for e in still])
     assert np.all(sigmas >= 0.99 * sigmas[0]) and np.all(sigmas <= 1.2 * sigmas[0])
     assert any("standstill" in record.message for record in caplog.records)
