@@ -426,14 +426,15 @@ def _inverse_chords(per_camera: Sequence[PointChords], tilt: np.ndarray) -> np.n
     return np.where(chords < 1e12, 1.0 / chords, 0.0)
 
 
-def _plane_step(per_camera: Sequence[PointChords], inverse_sigmas: np.ndarray, tilt: np.ndarray, inliers: np.ndarray,
+def _plane_step(per_camera: Sequence[PointChords], inverse_sigmas: np.ndarray, tilt: np.ndarray, inverse: np.ndarray, inliers: np.ndarray,
                 prior_sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One Gauss-Newton step of the plane fit on the ``inliers`` in inverse chords: parameters
     ``x = (q, delta_tilt)`` with ``q = 1 / rho``, rows ``(q - q_k(tilt) - J_k delta) / sigma_q,k``
     (J: numerical derivative of ``1 / (G)`` in the tilt) and the prior rows
-    ``(tilt + delta) / prior_sigma``. Returns ``(x, normal matrix, data residuals)``."""
+    ``(tilt + delta) / prior_sigma``; ``inverse``: :func:`_inverse_chords` at ``tilt`` (the caller
+    has it from the inlier selection). Returns ``(x, normal matrix, data residuals)``."""
     step = 1e-5
-    values = _inverse_chords(per_camera, tilt)[inliers]
+    values = inverse[inliers]
     jacobian = np.column_stack([(_inverse_chords(per_camera, tilt + step * axis)[inliers] - values) / step for axis in np.eye(2)])
     weights = 1.0 / inverse_sigmas[inliers]
     design = np.vstack([np.column_stack([weights, -jacobian * weights[:, None]]), np.column_stack([np.zeros(2), np.eye(2) / prior_sigma])])
@@ -459,13 +460,15 @@ def fit_road_plane(per_camera: Sequence[PointChords], sigmas: np.ndarray, option
         return None
     tilt, chord, inliers = found
     inverse_sigmas = sigmas / _candidate_chords(per_camera, np.zeros(2)) ** 2
+    inverse = _inverse_chords(per_camera, tilt)
     for _ in range(max(options.plane_rounds, 1)):
-        x, normal_matrix, residuals = _plane_step(per_camera, inverse_sigmas, tilt, inliers, options.normal_prior_sigma)
+        x, normal_matrix, residuals = _plane_step(per_camera, inverse_sigmas, tilt, inverse, inliers, options.normal_prior_sigma)
         tilt = tilt + x[1:]
-        inliers = _plane_inliers(_inverse_chords(per_camera, tilt), inverse_sigmas, sigmas, float(x[0]), options)
+        inverse = _inverse_chords(per_camera, tilt)  # once per round: the inlier selection and the next step share it
+        inliers = _plane_inliers(inverse, inverse_sigmas, sigmas, float(x[0]), options)
         if np.count_nonzero(inliers) < options.min_points:
             return None
-    x, normal_matrix, residuals = _plane_step(per_camera, inverse_sigmas, tilt, inliers, options.normal_prior_sigma)
+    x, normal_matrix, residuals = _plane_step(per_camera, inverse_sigmas, tilt, inverse, inliers, options.normal_prior_sigma)
     tilt, chord = tilt + x[1:], 1.0 / float(x[0])
     used = int(np.count_nonzero(inliers))
     birge = max(1.0, float(np.sqrt(np.sum(residuals**2) / max(used - 3, 1))))
