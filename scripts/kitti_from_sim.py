@@ -26,6 +26,7 @@ import numpy as np  # noqa: E402
 from ampc_vo.errors import DatasetError  # noqa: E402
 from ampc_vo.geometry import invert_pose  # noqa: E402
 from ampc_vo.io.folder import read_dataset  # noqa: E402
+from ampc_vo.io.kitti import camera_poses  # noqa: E402
 from ampc_vo.rig import Camera  # noqa: E402
 from ampc_vo.tools.cli import exit_codes  # noqa: E402
 
@@ -57,7 +58,7 @@ def projection_rows(left: Camera, baseline: float) -> tuple[np.ndarray, np.ndarr
 
 def left_camera_poses(T_world_tractor: np.ndarray, T_body_left: np.ndarray) -> np.ndarray:
     """(F, 3, 4) poses of the left camera in the first left-camera frame (KITTI poses.txt)."""
-    T_world_left = np.asarray(T_world_tractor) @ T_body_left
+    T_world_left = camera_poses(T_world_tractor, T_body_left)
     return (invert_pose(T_world_left[0]) @ T_world_left)[:, :3, :]
 
 
