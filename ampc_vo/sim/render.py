@@ -14,8 +14,11 @@ Speed (``scripts/benchmark_render.py``): pixels are stored tile-major (16x16 til
 tested against the tiles its projected outline's bounding box covers (quads reaching behind a
 pinhole lens are clipped at a near plane first), refined by its bounding sphere against each tile's
 cone of rays and by which side of its plane a tile's rays can reach; quads are processed near to far
-and skip tiles already filled with nearer surfaces. Large quads are split into pieces and collinear
-road strips merged. Sequences are rendered by several (spawned) processes.
+and skip tiles already filled with nearer surfaces; quads on a few tiles only (far, thin) are
+ray-tested in batches of 64 (one numpy pass each). Large quads are split into pieces and collinear
+road strips merged; beyond ``detail_distance_m`` blocks of 8 x 8 pieces are tested as one (level of
+detail: same hits). Quads under a quarter of a pixel's solid angle are culled (one ray per pixel
+would alias them). Sequences are rendered by several (spawned) processes.
 
 Conventions: ``T_world_camera = T_world_body @ T_body_camera`` (DESIGN 1), OpenCV camera axes.
 Road quads (``kind == 'road'``) carry painted lane markings along their ``axis_u`` (edge lines and a
@@ -71,6 +74,7 @@ class RenderOptions:
 
     tile_size: int = 16
     max_quad_extent_m: float = 20.0   # quads larger than this are split for culling
+    detail_distance_m: float = 100.0  # beyond: quads whole, not split (level of detail; same pixels)
     mip_bias: float = 0.0             # added to the mip level (negative: sharper, more aliasing)
     ground_texture_scale: float = 2.5  # multiplies texture_scale of horizontal quads (coarser ground
                                        # texture: KLT survives the large near-ground image motion)
@@ -96,7 +100,7 @@ class RenderOptions:
     png_compression: int = 1
 
     def __post_init__(self) -> None:
-        if self.tile_size < 4 or self.max_quad_extent_m <= 0 or self.motion_blur_samples < 1:
+        if self.tile_size < 4 or self.max_quad_extent_m <= 0 or self.detail_distance_m < 0 or self.motion_blur_samples < 1:
             raise ConfigError(f"render options: invalid values {self}")
 
 
@@ -216,6 +220,9 @@ class PreparedQuads:
     parent_height: np.ndarray    # (Q,) m: road width across (parent quad's height)
     centre: np.ndarray      # (Q, 3) bounding sphere
     radius: np.ndarray      # (Q,)
+    parent: np.ndarray      # (Q,) int: index of the quad the piece was split from
+    piece_u: np.ndarray     # (Q,) int: the piece's column and row in its parent's grid of pieces
+    piece_v: np.ndarray
 
     def __len__(self) -> int:
         return int(self.width.shape[0])
@@ -366,13 +373,17 @@ def prepare_quads(quads: Sequence[Quad], atlas: TextureAtlas, options: RenderOpt
                 columns["parent_height"].append(quad.height)
                 columns["centre"].append(piece_origin + 0.5 * piece_w * axis_u + 0.5 * piece_h * axis_v)
                 columns["radius"].append(0.5 * math.hypot(piece_w, piece_h))
+                columns["parent"].append(parent_index)
+                columns["piece_u"].append(i)
+                columns["piece_v"].append(j)
     if not columns["width"]:
         empty = {name: np.zeros((0, 3)) for name in ("origin", "axis_u", "axis_v", "normal", "centre")}
         empty.update({name: np.zeros(0) for name in ("width", "height", "offset_a", "offset_b", "road_along", "texture_scale", "gain", "parent_height", "radius")})
-        return PreparedQuads(**empty, texture_map=np.zeros((0, 2, 3)), texture_index=np.zeros(0, np.int64), road=np.zeros(0, bool),
-                             horizontal=np.zeros(0, bool))
+        empty.update({name: np.zeros(0, np.int64) for name in ("texture_index", "parent", "piece_u", "piece_v")})
+        return PreparedQuads(**empty, texture_map=np.zeros((0, 2, 3)), road=np.zeros(0, bool), horizontal=np.zeros(0, bool))
     arrays = {name: np.asarray(values) for name, values in columns.items()}
-    arrays["texture_index"] = arrays["texture_index"].astype(np.int64)
+    for name in ("texture_index", "parent", "piece_u", "piece_v"):
+        arrays[name] = arrays[name].astype(np.int64)
     arrays["road"] = arrays["road"].astype(bool)
     return PreparedQuads(**arrays)
 
@@ -427,6 +438,35 @@ def shadow_map(quads: Sequence[Quad], sun: np.ndarray, resolution: float = 0.2) 
 
 def _concat_prepared(first: PreparedQuads, second: PreparedQuads) -> PreparedQuads:
     return PreparedQuads(**{name: np.concatenate([getattr(first, name), getattr(second, name)]) for name in PreparedQuads.__dataclass_fields__})
+
+
+_BATCH_MAX_TILES = 4   # quads on at most this many tiles are ray-tested in batches
+_BATCH_QUADS = 64
+_SUBPIXEL_FRACTION = 0.25  # quads below this share of a pixel's solid angle are not rendered
+_COARSE_FACTOR = 8  # pieces per side of a coarse block (level of detail beyond detail_distance_m)
+
+
+def coarsen_pieces(pieces: PreparedQuads, factor: int) -> tuple[PreparedQuads, np.ndarray]:
+    """Blocks of up to ``factor`` x ``factor`` neighbouring pieces of the same parent merged into one
+    piece each (exactly their union: same plane, texture map and shading), and each piece's block."""
+    if len(pieces) == 0:
+        return pieces, np.zeros(0, np.int64)
+    keys = np.stack([pieces.parent, pieces.piece_u // factor, pieces.piece_v // factor], axis=1)
+    _, first, block_of_piece = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    block_of_piece = block_of_piece.ravel()
+    count = len(first)
+    # Pieces are listed by parent, then u, then v: the first piece of a block is its corner.
+    width = np.zeros(count)
+    np.add.at(width, block_of_piece, np.where(pieces.piece_v % factor == 0, pieces.width, 0.0))
+    height = np.zeros(count)
+    np.add.at(height, block_of_piece, np.where(pieces.piece_u % factor == 0, pieces.height, 0.0))
+    blocks = _select_prepared(pieces, first)
+    centre = blocks.origin + 0.5 * width[:, None] * blocks.axis_u + 0.5 * height[:, None] * blocks.axis_v
+    return dataclasses.replace(blocks, width=width, height=height, centre=centre, radius=0.5 * np.hypot(width, height)), block_of_piece
+
+
+def _select_prepared(quads: PreparedQuads, keep: np.ndarray) -> PreparedQuads:
+    return PreparedQuads(**{name: getattr(quads, name)[keep] for name in PreparedQuads.__dataclass_fields__})
 
 
 def move_prepared(quads: PreparedQuads, T_world_body: np.ndarray) -> PreparedQuads:
@@ -577,12 +617,25 @@ class Renderer:
         if textures is None:
             textures = load_textures(seed=self.options.seed)
         self.atlas = textures if isinstance(textures, TextureAtlas) else build_atlas(textures)
-        self.quads = prepare_quads(merge_collinear_strips(scene.quads), self.atlas, self.options)
+        merged = merge_collinear_strips(scene.quads)
+        self.quads = prepare_quads(merged, self.atlas, self.options)
+        # Level of detail: far from the camera, blocks of pieces are tested as one (the pieces only
+        # help culling near them; hits and texture coordinates are the same, pieces store offsets).
+        self.coarse_quads, self._coarse_of_piece = coarsen_pieces(self.quads, _COARSE_FACTOR)
         self.shadows = shadow_map(scene.quads, _SUN_DIRECTION) if self.options.shadows else None
         self.relief = tuple(scene.relief)  # bumps and potholes added to the horizontal quads per pixel (relief_hits)
         self._rays: dict[tuple, CameraRays] = {}
         self._bodies: dict[tuple, tuple] = {}  # moving bodies' faces prepared in their own frames
         self.last_stats: dict[str, int] = {}  # work of the last depth pass (candidates, quads and ray tests)
+
+    def quads_near(self, camera_position: np.ndarray) -> PreparedQuads:
+        """The scene's quads for a camera at ``camera_position`` (world): split into pieces where a
+        quad comes within ``detail_distance_m``, whole beyond (DESIGN 6)."""
+        coarse = self.coarse_quads
+        near = np.linalg.norm(coarse.centre - camera_position, axis=1) - coarse.radius < self.options.detail_distance_m
+        if near.all():
+            return self.quads
+        return _concat_prepared(_select_prepared(self.quads, near[self._coarse_of_piece]), _select_prepared(coarse, ~near))
 
     def rays_of(self, camera: Camera) -> CameraRays:
         key = (camera.name, camera.model, camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
@@ -607,6 +660,11 @@ class Renderer:
         angular_radius = np.arcsin(np.clip(quads.radius / safe_distance, 0.0, 1.0))
         cos_axis = _times(centre, rays.camera_axis) / safe_distance
         in_view = inside | (np.arccos(np.clip(cos_axis, -1, 1)) <= rays.camera_half_angle + angular_radius)
+        # Sub-pixel culling: a quad subtending less than a quarter of the smallest pixel's solid angle
+        # (its area over the squared distance, an upper bound) is hit by one ray per pixel at random
+        # rather than imaged (aliasing, not detail; a camera would blur it into its background).
+        pixel_solid_angle = float(rays.pixel_angle.min()) ** 2
+        in_view &= inside | (quads.width * quads.height >= _SUBPIXEL_FRACTION * pixel_solid_angle * safe_distance**2)
         candidates = np.flatnonzero(in_view)
         num_tiles = len(rays.tile_axis)
         if candidates.size == 0:
@@ -688,10 +746,11 @@ class Renderer:
 
     def depth_pass(self, camera: Camera, T_world_camera: np.ndarray, extra: PreparedQuads | None = None) -> VisibilityBuffer:
         """Nearest hit per pixel (ray casting with a depth test), as a :class:`VisibilityBuffer`."""
-        quads = self.quads if extra is None else _concat_prepared(self.quads, extra)
-        rays = self.rays_of(camera)
         R_world_camera = np.asarray(T_world_camera[:3, :3], float)
         camera_position = np.asarray(T_world_camera[:3, 3], float)
+        scene_quads = self.quads_near(camera_position)
+        quads = scene_quads if extra is None else _concat_prepared(scene_quads, extra)
+        rays = self.rays_of(camera)
         num_tiles, tile_pixels = rays.pixel_index.shape
         depth = np.full((num_tiles, tile_pixels), np.inf, np.float32)
         quad_id = np.full((num_tiles, tile_pixels), -1, np.int32)
@@ -720,6 +779,43 @@ class Renderer:
             centre_u, centre_v = (plane[:, 1] + half_w).astype(np.float32), (plane[:, 2] + half_h).astype(np.float32)
             tile_far = np.full(num_tiles, np.inf, np.float32)  # farthest depth in each tile (occlusion culling)
             tested_quads = tested_pixels = 0
+            batch_quads: list[int] = []
+            batch_tiles: list[np.ndarray] = []
+
+            def test_batch() -> None:
+                """Ray tests of the batched small quads at once; per tile pixel the nearest hit wins."""
+                if not batch_quads:
+                    return
+                pair_quad = np.repeat(np.array(batch_quads), [tiles.size for tiles in batch_tiles])
+                pair_tile = np.concatenate(batch_tiles)
+                batch_quads.clear()
+                batch_tiles.clear()
+                order_by_tile = np.argsort(pair_tile, kind="stable")
+                pair_quad, pair_tile = pair_quad[order_by_tile], pair_tile[order_by_tile]
+                along = np.matmul(rays.tile_rays[pair_tile], frames[pair_quad].transpose(0, 2, 1))  # (P, pixels, n u v)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    t = plane_n[pair_quad, None] / along[..., 0]
+                hit = (t > _MIN_HIT_DISTANCE) & (t < depth[pair_tile])
+                hit &= np.abs(t * along[..., 1] - centre_u[pair_quad, None]) <= half_w[pair_quad, None]
+                hit &= np.abs(t * along[..., 2] - centre_v[pair_quad, None]) <= half_h[pair_quad, None]
+                if not hit.any():
+                    return
+                t = np.where(hit, t, np.float32(np.inf))
+                starts = np.flatnonzero(np.r_[True, pair_tile[1:] != pair_tile[:-1]])
+                tiles = pair_tile[starts]
+                nearest_t = np.minimum.reduceat(t, starts, axis=0)  # (tiles, pixels)
+                group = np.repeat(np.arange(starts.size), np.diff(np.r_[starts, pair_tile.size]))
+                winner = hit & (t == nearest_t[group])
+                winner_id = np.maximum.reduceat(np.where(winner, pair_quad[:, None].astype(np.int32), np.int32(-1)), starts, axis=0)
+                better = winner_id >= 0
+                current = depth[tiles]
+                np.copyto(current, nearest_t, where=better)
+                depth[tiles] = current
+                tile_far[tiles] = current.max(axis=1)
+                ids = quad_id[tiles]
+                np.copyto(ids, winner_id, where=better)
+                quad_id[tiles] = ids
+
             for k in order:
                 q = int(candidates[k])
                 tiles = np.flatnonzero(overlap[k])
@@ -728,6 +824,15 @@ class Renderer:
                     continue
                 tested_quads += 1
                 tested_pixels += tiles.size * tile_pixels
+                if tiles.size <= _BATCH_MAX_TILES:
+                    # Small quads (far away, thin): tested in batches, in order; a batch sees the
+                    # depths of the quads before it (occlusion culling between batches only).
+                    batch_quads.append(q)
+                    batch_tiles.append(tiles)
+                    if len(batch_quads) >= _BATCH_QUADS:
+                        test_batch()
+                    continue
+                test_batch()
                 # ray components along the quad's n, u, v in one pass (cv2.transform: rows of frames[q])
                 along = cv2.transform(rays.tile_rays[tiles].reshape(-1, 1, 3), frames[q]).reshape(tiles.size, tile_pixels, 3)
                 with np.errstate(divide="ignore", invalid="ignore"):
@@ -744,6 +849,7 @@ class Renderer:
                 ids = quad_id[tiles]
                 np.copyto(ids, np.int32(q), where=hit)
                 quad_id[tiles] = ids
+            test_batch()
             self.last_stats = {"candidates": int(candidates.size), "quads_tested": tested_quads, "ray_tests": tested_pixels}
         order = rays.image_order
         shape = (camera.height, camera.width)

@@ -122,6 +122,58 @@ def test_near_quad_occludes_far_quad_in_any_order(atlas):
     np.testing.assert_array_equal(hidden[:60], image_a[:60])  # outside the near quad: unchanged
 
 
+def test_level_of_detail_and_batched_ray_tests_give_the_same_pixels(atlas):
+    """Coarse blocks of pieces far away (detail_distance_m) and the batched ray tests of small quads
+    are pure speed-ups: depth and surface ids agree with testing every piece one by one."""
+    from ampc_vo.rig import Camera
+    from ampc_vo.sim import render as render_module
+
+    camera = Camera("test", "tractor", "pinhole", 320, 240, 200.0, 200.0, 159.5, 119.5)
+    T_world_camera = make_pose(rot_x(-np.pi / 2 - 0.05), np.array([0.0, 0.0, 2.0]))  # looking along +y, 3 deg down
+    ground = Quad(np.array([-200.0, -20.0, 0.0]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 400.0, 420.0, "ground", "grass", 2.0)
+    walls = [Quad(np.array([x, y, 0.0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]), 30.0, 6.0, "facade", "brick", 4.0)
+             for x in (-12.0, 12.0) for y in (20.0, 90.0, 200.0)]
+    poles = [Quad(np.array([x, y, 0.0]), np.array([1.0, 0, 0]), np.array([0, 0, 1.0]), 0.2, 5.0, "pole", "metal", 1.0)
+             for x in (-6.0, 6.0) for y in np.arange(10.0, 390.0, 15.0)]
+    scene = Scene(tuple([ground, *walls, *poles]))
+    detailed = Renderer(scene, atlas, RenderOptions(detail_distance_m=1e9))
+    coarse = Renderer(scene, atlas, RenderOptions())
+    assert len(coarse.quads_near(T_world_camera[:3, 3])) < 0.5 * len(detailed.quads_near(T_world_camera[:3, 3]))
+    reference = detailed.depth_pass(camera, T_world_camera)
+    one_by_one = render_module._BATCH_MAX_TILES
+    try:
+        render_module._BATCH_MAX_TILES = 0
+        unbatched = detailed.depth_pass(camera, T_world_camera)
+    finally:
+        render_module._BATCH_MAX_TILES = one_by_one
+    assert np.array_equal(np.isfinite(reference.depth), np.isfinite(unbatched.depth))
+    np.testing.assert_allclose(reference.depth[np.isfinite(reference.depth)], unbatched.depth[np.isfinite(unbatched.depth)], rtol=1e-5)
+    assert np.mean(reference.quad_id == unbatched.quad_id) > 0.999  # ties at shared edges may pick either
+    image_detailed = detailed.render(camera, T_world_camera)
+    image_coarse = coarse.render(camera, T_world_camera)
+    hit = np.isfinite(reference.depth)
+    coarse_depth = coarse.depth_pass(camera, T_world_camera).depth
+    assert np.array_equal(hit, np.isfinite(coarse_depth))
+    np.testing.assert_allclose(coarse_depth[hit], reference.depth[hit], rtol=1e-4)
+    assert np.mean(np.abs(image_detailed.astype(int) - image_coarse)) < 0.2
+
+
+def test_sub_pixel_quads_are_not_rendered(atlas):
+    """A quad below a quarter of a pixel's solid angle is culled (one ray per pixel would alias it);
+    one of a pixel or more is drawn."""
+    from ampc_vo.rig import Camera
+
+    camera = Camera("test", "tractor", "pinhole", 64, 48, 40.0, 40.0, 31.5, 23.5)  # 1 px = 1/40 rad
+    def dark_pixels(side: float) -> int:
+        distance = 40.0
+        tile = Quad(np.array([-0.5 * side, -0.5 * side, distance]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
+                    side, side, "box", "metal", 1.0)
+        visible = Renderer(Scene((tile,)), atlas, RenderOptions()).depth_pass(camera, np.eye(4))
+        return int(np.isfinite(visible.depth).sum())
+    assert dark_pixels(0.3) == 0      # 0.3 m at 40 m: 0.3 x 0.3 px
+    assert dark_pixels(2.0) >= 3      # 2 x 2 px
+
+
 def test_distant_fine_texture_is_filtered_not_aliased(atlas):
     """Mipmapping: a 2 cm checker seen at 40 m averages to grey instead of aliasing into noise."""
     from ampc_vo.rig import Camera
