@@ -553,7 +553,7 @@ def relief_hits(bumps: Sequence[Any], camera_position: np.ndarray, rays_world: n
 
     if not len(bumps) or not len(pixels):
         return None
-    approach = np.einsum("kj,kj->k", plane_normal, rays_world) / plane_normal[:, 2]
+    approach = (plane_normal[:, 0] * rays_world[:, 0] + plane_normal[:, 1] * rays_world[:, 1] + plane_normal[:, 2] * rays_world[:, 2]) / plane_normal[:, 2]
     usable = (approach < -_RELIEF_MIN_APPROACH) & (depth < _RELIEF_RANGE_M)
     heights = np.array([bump.height for bump in bumps])
     high, low = float(np.sum(np.maximum(heights, 0.0))), float(np.sum(np.minimum(heights, 0.0)))
@@ -562,10 +562,15 @@ def relief_hits(bumps: Sequence[Any], camera_position: np.ndarray, rays_world: n
     start = camera_position[:2] + t_start[:, None] * rays_world[:, :2]
     segment = (t_stop - t_start)[:, None] * rays_world[:, :2]
     near = np.zeros(len(pixels), bool)
+    segment_length = np.sqrt(segment[:, 0] ** 2 + segment[:, 1] ** 2)
     for bump in bumps:  # distance of the bump's centre from the bracket's xy segment
+        reach = 0.5 * math.hypot(bump.length, bump.width) + 1e-3
         relative = np.asarray(bump.center) - start
-        along = np.clip(np.einsum("kj,kj->k", relative, segment) / np.maximum(np.einsum("kj,kj->k", segment, segment), 1e-12), 0.0, 1.0)
-        near |= np.linalg.norm(relative - along[:, None] * segment, axis=1) <= 0.5 * math.hypot(bump.length, bump.width) + 1e-3
+        # Cheap bound first (the segment lies within its length of its start), exact test after.
+        maybe = np.flatnonzero(relative[:, 0] ** 2 + relative[:, 1] ** 2 <= (reach + segment_length) ** 2)
+        relative, part = relative[maybe], segment[maybe]
+        along = np.clip(np.einsum("kj,kj->k", relative, part) / np.maximum(np.einsum("kj,kj->k", part, part), 1e-12), 0.0, 1.0)
+        near[maybe] |= np.linalg.norm(relative - along[:, None] * part, axis=1) <= reach
     chosen = np.flatnonzero(usable & near)
     if chosen.size == 0:
         return None
