@@ -167,6 +167,11 @@ class RansacConfig:
     # median parallax (pixels, divided by the focal length) below which a frame pair is a standstill;
     # null: the solvers' default (0.003 rad). Forward motion with mostly far points (KITTI) needs less
     standstill_parallax_px: float | None = None
+    # the hardest braking a truck can do (full braking of loaded trucks is about 5-7 m/s^2; UN ECE
+    # R13 asks N3 vehicles for at least 5 m/s^2): a frame pair is a standstill only when the speed
+    # before it could have dropped to zero within it (DESIGN 2.1); tracks that stay still while
+    # the truck turns (the trailer's box in a mirror) cannot then stop the truck
+    max_deceleration_mps2: float = 8.0
     # error of the Ackermann chord direction (curvature transitions, tyre slip; DESIGN 2): at small
     # yaw changes the 2-point chord hinges on it; 0 trusts the model exactly
     model_direction_sigma_deg: float = 0.05
@@ -174,6 +179,7 @@ class RansacConfig:
     def validate(self, where: str) -> None:
         _positive(self.threshold_px, where + "threshold_px")
         _at_least(self.model_direction_sigma_deg, 0.0, where + "model_direction_sigma_deg")
+        _positive(self.max_deceleration_mps2, where + "max_deceleration_mps2")
         if not 0.0 < self.confidence < 1.0:
             raise _error(where + "confidence", f"must be in (0, 1), got {self.confidence}")
         _at_least(self.max_iterations, 1, where + "max_iterations")

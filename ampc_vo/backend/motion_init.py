@@ -74,6 +74,16 @@ def camera_pairs(rig: Rig, body: str, first: FrameObservations, second: FrameObs
     return pairs
 
 
+def _parallax_summary(pairs: list[CameraPairs]) -> str:
+    """Per camera: shared tracks and their median parallax in pixels (for the log)."""
+    return ", ".join(f"{pair.camera.name} {len(pair)} tracks {_median_angle(pair) * pair.camera.fx:.1f} px" for pair in pairs)
+
+
+def _median_angle(pair: CameraPairs) -> float:
+    cosines = np.sum(pair.body_bearings_i * pair.body_bearings_j, axis=1)
+    return float(np.median(np.arccos(np.clip(cosines, -1.0, 1.0)))) if cosines.size else 0.0
+
+
 def _solver_config(config: VoConfig, cameras: list[Camera]) -> SolverRansacConfig:
     """The solvers' RANSAC options from the VO config: the pixel threshold over the mean focal."""
     focal = float(np.mean([0.5 * (camera.fx + camera.fy) for camera in cameras])) if cameras else 500.0
@@ -155,11 +165,14 @@ class MotionInitializer:
             normal_prior_sigma=float(np.radians(config.scale.ground_normal_prior_sigma_deg)))
         self._stereo_options = StereoScaleOptions(pixel_sigma=config.smoother.pixel_sigma, max_depth_m=config.scale.stereo_max_depth_m)
 
-    def tractor(self, first: FrameObservations, second: FrameObservations, predicted: np.ndarray, prediction_sigma: float | None = None) -> TractorMotion:
+    def tractor(self, first: FrameObservations, second: FrameObservations, predicted: np.ndarray, prediction_sigma: float | None = None,
+                speed_before: float | None = None) -> TractorMotion:
         """Tractor motion ``T_first_second``; ``predicted`` (constant velocity) fills what is unknown:
         the chord in straight driving and everything when there are too few tracks. With
         ``prediction_sigma`` (metres) the RANSAC chord is fused with the predicted one (the 2-point
-        chord is weak on gentle curves, DESIGN 2.3; trucks change speed slowly)."""
+        chord is weak on gentle curves, DESIGN 2.3; trucks change speed slowly). ``speed_before``
+        (m/s, measured before the pair; None: unknown): a parallax standstill is accepted only if
+        the truck could brake from it to rest within the pair (``ransac.max_deceleration_mps2``)."""
         pairs = camera_pairs(self.rig, "tractor", first, second)
         shared = sum(len(pair) for pair in pairs)
         predicted_chord = float(np.linalg.norm(predicted[:2, 3]))
@@ -169,7 +182,16 @@ class MotionInitializer:
             stereo = self._stereo_motion(first, second, predicted)
             if stereo is not None:
                 return TractorMotion(stereo.T_i_j, MotionStatus.OK, self._stereo_estimate(pairs, stereo), shared, stereo.as_scale_chord())
-        estimate = estimate_tractor_motion(pairs, self.rig.axle_x("tractor"), self._tractor_config, chord_prior=max(predicted_chord, 1e-3), rng=self._rng)
+        # signed: the direction of travel of the prediction (used where the pair's chord is not measured)
+        chord_prior = (1.0 if predicted[0, 3] >= 0.0 else -1.0) * max(predicted_chord, 1e-3)
+        estimate = estimate_tractor_motion(pairs, self.rig.axle_x("tractor"), self._tractor_config, chord_prior=chord_prior, rng=self._rng)
+        dt = second.timestamp - first.timestamp
+        if estimate.status is SolverStatus.STANDSTILL and speed_before is not None and not self._can_stop(abs(speed_before), dt):
+            logger.info("frames %d-%d: parallax says standstill, but the truck cannot stop from %.1f m/s within %.2f s "
+                        "(ransac.max_deceleration_mps2): motion estimated without the still tracks (median parallax: %s)",
+                        first.frame, second.frame, abs(speed_before), dt, _parallax_summary(pairs))
+            estimate = estimate_tractor_motion(pairs, self.rig.axle_x("tractor"), self._tractor_config,
+                                               chord_prior=chord_prior, rng=self._rng, moving=True)
         status = _status(estimate.status)
         if shared < self.config.keyframes.min_tracks:
             status = MotionStatus.TOO_FEW_TRACKS
@@ -187,6 +209,16 @@ class MotionInitializer:
             status = MotionStatus.TOO_FEW_TRACKS
             T_i_j = predicted
         return TractorMotion(T_i_j, status, estimate, shared)
+
+    def _can_stop(self, speed: float, dt: float) -> bool:
+        """Whether a truck at ``speed`` (m/s) can be at rest within a pair of ``dt`` seconds: braking
+        at ``ransac.max_deceleration_mps2`` from ``v0`` it covers at least ``min(v0 dt - a dt^2 / 2,
+        v0^2 / (2 a))``, which must stay within the standstill distance."""
+        if dt <= 0.0:
+            return True
+        deceleration = self.config.ransac.max_deceleration_mps2
+        least_distance = min(speed * dt - 0.5 * deceleration * dt**2, speed**2 / (2.0 * deceleration))
+        return least_distance <= self.config.keyframes.standstill_distance_m
 
     def _stereo_motion(self, first: FrameObservations, second: FrameObservations, T_guess: np.ndarray) -> StereoMotion | None:
         """Tractor yaw change and axle chord from stereo points (:func:`ampc_vo.scale.stereo.stereo_motion`)

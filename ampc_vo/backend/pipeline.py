@@ -161,7 +161,8 @@ class OdometryPipeline:
         wheel = self._wheel_chord(self._last_keyframe, frame)
         if wheel is not None:  # wheel odometry measures the chord: the prediction takes it
             predicted, prediction_sigma = _with_chord_length(predicted, wheel), self.config.scale.wheel_speed_sigma_m
-        tractor = self.initializer.tractor(self._last_keyframe, frame, predicted, prediction_sigma if self._velocity is not None else None)
+        tractor = self.initializer.tractor(self._last_keyframe, frame, predicted, prediction_sigma if self._velocity is not None else None,
+                                           speed_before=self._velocity[1] if self._velocity is not None else None)
         decision = self.policy.decide(tractor, elapsed)
         if not decision.is_keyframe:
             return []

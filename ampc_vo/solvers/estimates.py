@@ -131,12 +131,15 @@ def chord_is_observable(chord: float, chord_sigma: float, config: RansacConfig) 
     )
 
 
+def parallax(group: Group) -> np.ndarray:
+    """Angle (radians) between the two body-frame bearings of each correspondence of ``group``."""
+    return np.arccos(np.clip(np.sum(group.bearings_i * group.bearings_j, axis=1), -1.0, 1.0))
+
+
 def median_parallax(groups: Sequence[Group]) -> float:
     """Median angle (radians) between the two body-frame bearings of each correspondence."""
-    cosines = np.concatenate([np.sum(group.bearings_i * group.bearings_j, axis=1) for group in groups] or [np.zeros(0)])
-    if cosines.size == 0:
-        return 0.0
-    return float(np.median(np.arccos(np.clip(cosines, -1.0, 1.0))))
+    angles = np.concatenate([parallax(group) for group in groups] or [np.zeros(0)])
+    return float(np.median(angles)) if angles.size else 0.0
 
 
 @dataclass

@@ -31,9 +31,12 @@ from ampc_vo.solvers.estimates import (
     as_groups,
     chord_is_observable,
     median_parallax,
+    parallax,
 )
 
 logger = logging.getLogger(__name__)
+
+_TIGHTEST_TURN_RADIUS_M = 4.0  # below any truck's rear-axle turning radius (about 6-9 m for tractors)
 
 
 # ---------------------------------------------------------------------- scoring
@@ -96,6 +99,7 @@ def estimate_tractor_motion(
     config: RansacConfig | None = None,
     chord_prior: float | None = None,
     rng: np.random.Generator | None = None,
+    moving: bool = False,
 ) -> TractorMotionEstimate:
     """Tractor motion from per-camera correspondences by RANSAC over the 2-point solver (DESIGN 2.1).
 
@@ -103,9 +107,13 @@ def estimate_tractor_motion(
     center (3,))`` in the tractor frame (or an object with ``as_group()``); samples mix cameras.
     ``axle_x``: tractor axle. Steps: adaptive RANSAC with MSAC scoring; local optimisation of the
     best hypotheses and of chord-scaled seeds (LO-RANSAC, least squares over inliers); scale
-    checks. ``chord_prior`` (metres, e.g. wheel odometry) is used only when the scale is
+    checks. ``chord_prior`` (metres, e.g. wheel odometry; its sign, where it has one, is the direction
+    of travel of a pair whose chord was not measured) is used only when the scale is
     unobservable (straight driving, cameras above the axle, ambiguous chord): the status stays
-    ``SCALE_UNOBSERVABLE`` but ``chord`` and ``T_i_j`` are then filled with it.
+    ``SCALE_UNOBSERVABLE`` but ``chord`` and ``T_i_j`` are then filled with it. ``moving``: the
+    truck is known to move (it could not have stopped within the pair): no standstill test, and
+    correspondences without parallax (on the vehicle itself, e.g. the trailer's box in a mirror, or
+    far on the line of motion) are left out.
     """
     config = config or RansacConfig()
     rng = rng if rng is not None else np.random.default_rng(config.seed)
@@ -114,7 +122,12 @@ def estimate_tractor_motion(
     total = sum(len(g) for g in groups)
     if total < max(2, config.min_inliers):
         return TractorMotionEstimate(SolverStatus.TOO_FEW_POINTS, inlier_masks=empty_masks)
-    if median_parallax(groups) < config.standstill_parallax:
+    if moving:
+        groups = [group.subset(parallax(group) >= config.standstill_parallax) for group in groups]
+        total = sum(len(g) for g in groups)
+        if total < max(2, config.min_inliers):
+            return TractorMotionEstimate(SolverStatus.TOO_FEW_POINTS, inlier_masks=empty_masks)
+    elif median_parallax(groups) < config.standstill_parallax:
         every = [g.full_mask(np.ones(len(g), dtype=bool)) for g in groups]
         return TractorMotionEstimate(SolverStatus.STANDSTILL, 0.0, 0.0, np.eye(4), every, total)
     bearings_i, bearings_j, centers = _stack(groups)
@@ -144,6 +157,11 @@ def estimate_tractor_motion(
     masks = _split(refined_inliers, groups)
     yaw_sigma = float(np.sqrt(covariance[0, 0]))
     if abs(refined_chord) < config.min_chord:
+        if moving or abs(refined_yaw) > max(3.0 * yaw_sigma, config.min_chord / _TIGHTEST_TURN_RADIUS_M):
+            # A truck cannot turn on the spot (nor be known to move and stand still): the chord was
+            # not measured in this pair (rotation-like tracks); the yaw is refined with the prior's.
+            prior = (cost, refined_yaw, chord_prior if chord_prior is not None else refined_chord, refined_inliers)
+            return _scale_unobservable(groups, prior, axle_x, config, chord_prior, drawn, chord_sigma)
         return TractorMotionEstimate(SolverStatus.STANDSTILL, 0.0, 0.0, np.eye(4), masks, count, drawn, yaw_sigma, chord_sigma, 1.0, rms)
     T_i_j = make_pose(*ackermann_motion(refined_yaw, refined_chord, axle_x))
     sign = 1.0 if refined_chord >= 0 else -1.0
