@@ -28,6 +28,7 @@ from ampc_vo.rig import Camera, Rig
 from ampc_vo.backend.smoother import MotionInit, MotionStatus
 from ampc_vo.scale.stereo import StereoMotion, StereoScaleOptions, stereo_motion
 from ampc_vo.solvers import RansacConfig as SolverRansacConfig
+from ampc_vo.solvers.estimates import as_groups, median_parallax
 from ampc_vo.solvers import SolverStatus, TractorMotionEstimate, ackermann_motion, estimate_hitch_angles, estimate_tractor_motion, refine_joint
 
 logger = logging.getLogger(__name__)
@@ -76,12 +77,7 @@ def camera_pairs(rig: Rig, body: str, first: FrameObservations, second: FrameObs
 
 def _parallax_summary(pairs: list[CameraPairs]) -> str:
     """Per camera: shared tracks and their median parallax in pixels (for the log)."""
-    return ", ".join(f"{pair.camera.name} {len(pair)} tracks {_median_angle(pair) * pair.camera.fx:.1f} px" for pair in pairs)
-
-
-def _median_angle(pair: CameraPairs) -> float:
-    cosines = np.sum(pair.body_bearings_i * pair.body_bearings_j, axis=1)
-    return float(np.median(np.arccos(np.clip(cosines, -1.0, 1.0)))) if cosines.size else 0.0
+    return ", ".join(f"{pair.camera.name} {len(pair)} tracks {median_parallax(as_groups([pair])) * pair.camera.fx:.1f} px" for pair in pairs)
 
 
 def _solver_config(config: VoConfig, cameras: list[Camera]) -> SolverRansacConfig:

@@ -74,7 +74,7 @@ class RenderOptions:
 
     tile_size: int = 16
     max_quad_extent_m: float = 20.0   # quads larger than this are split for culling
-    detail_distance_m: float = 100.0  # beyond: quads whole, not split (level of detail; same pixels)
+    detail_distance_m: float = 100.0  # beyond: blocks of 8x8 pieces tested as one (level of detail; same pixels)
     mip_bias: float = 0.0             # added to the mip level (negative: sharper, more aliasing)
     ground_texture_scale: float = 2.5  # multiplies texture_scale of horizontal quads (coarser ground
                                        # texture: KLT survives the large near-ground image motion)
@@ -150,6 +150,7 @@ class CameraRays:
     tile_beyond_90: np.ndarray  # (T,) bool: some ray of the tile may point behind the lens plane
     tile_col: np.ndarray        # (T,) tile grid column
     tile_rays: np.ndarray       # (T, P, 3) float32 the rays of tile_planes interleaved (one cv2.transform per quad)
+    smallest_pixel_angle: float  # min of pixel_angle (sub-pixel culling)
 
 
 def camera_rays(camera: Camera, tile_size: int = 16) -> CameraRays:
@@ -186,6 +187,7 @@ def camera_rays(camera: Camera, tile_size: int = 16) -> CameraRays:
         pixel_index=pixel_index, image_order=image_order,
         tile_planes=np.ascontiguousarray(tile_rays.transpose(2, 0, 1)).astype(np.float32),
         tile_rays=np.ascontiguousarray(tile_rays, dtype=np.float32),
+        smallest_pixel_angle=float(pixel_angle.min()),
         tile_axis=axis, tile_half_angle=half_angle, pixel_angle=pixel_angle.astype(np.float32),
         valid=valid,
         rays_planes=np.ascontiguousarray(rays.reshape(height, width, 3).transpose(2, 0, 1)).astype(np.float32),
@@ -622,8 +624,7 @@ class Renderer:
         if textures is None:
             textures = load_textures(seed=self.options.seed)
         self.atlas = textures if isinstance(textures, TextureAtlas) else build_atlas(textures)
-        merged = merge_collinear_strips(scene.quads)
-        self.quads = prepare_quads(merged, self.atlas, self.options)
+        self.quads = prepare_quads(merge_collinear_strips(scene.quads), self.atlas, self.options)
         # Level of detail: far from the camera, blocks of pieces are tested as one (the pieces only
         # help culling near them; hits and texture coordinates are the same, pieces store offsets).
         self.coarse_quads, self._coarse_of_piece = coarsen_pieces(self.quads, _COARSE_FACTOR)
@@ -668,7 +669,7 @@ class Renderer:
         # Sub-pixel culling: a quad subtending less than a quarter of the smallest pixel's solid angle
         # (its area over the squared distance, an upper bound) is hit by one ray per pixel at random
         # rather than imaged (aliasing, not detail; a camera would blur it into its background).
-        pixel_solid_angle = float(rays.pixel_angle.min()) ** 2
+        pixel_solid_angle = rays.smallest_pixel_angle**2
         in_view &= inside | (quads.width * quads.height >= _SUBPIXEL_FRACTION * pixel_solid_angle * safe_distance**2)
         candidates = np.flatnonzero(in_view)
         num_tiles = len(rays.tile_axis)
@@ -787,6 +788,16 @@ class Renderer:
             batch_quads: list[int] = []
             batch_tiles: list[np.ndarray] = []
 
+            def keep_nearer(tiles: np.ndarray, t: np.ndarray, ids: np.ndarray | np.int32, nearer: np.ndarray) -> None:
+                """Write the hits ``t`` (and their quad ids) where ``nearer`` into the tiles' buffers."""
+                current = depth[tiles]
+                np.copyto(current, t, where=nearer)
+                depth[tiles] = current
+                tile_far[tiles] = current.max(axis=1)
+                tile_ids = quad_id[tiles]
+                np.copyto(tile_ids, ids, where=nearer)
+                quad_id[tiles] = tile_ids
+
             def test_batch() -> None:
                 """Ray tests of the batched small quads at once; per tile pixel the nearest hit wins."""
                 if not batch_quads:
@@ -806,20 +817,12 @@ class Renderer:
                 if not hit.any():
                     return
                 t = np.where(hit, t, np.float32(np.inf))
-                starts = np.flatnonzero(np.r_[True, pair_tile[1:] != pair_tile[:-1]])
-                tiles = pair_tile[starts]
+                first_of_tile = np.r_[True, pair_tile[1:] != pair_tile[:-1]]
+                starts = np.flatnonzero(first_of_tile)
                 nearest_t = np.minimum.reduceat(t, starts, axis=0)  # (tiles, pixels)
-                group = np.repeat(np.arange(starts.size), np.diff(np.r_[starts, pair_tile.size]))
-                winner = hit & (t == nearest_t[group])
+                winner = hit & (t == nearest_t[np.cumsum(first_of_tile) - 1])
                 winner_id = np.maximum.reduceat(np.where(winner, pair_quad[:, None].astype(np.int32), np.int32(-1)), starts, axis=0)
-                better = winner_id >= 0
-                current = depth[tiles]
-                np.copyto(current, nearest_t, where=better)
-                depth[tiles] = current
-                tile_far[tiles] = current.max(axis=1)
-                ids = quad_id[tiles]
-                np.copyto(ids, winner_id, where=better)
-                quad_id[tiles] = ids
+                keep_nearer(pair_tile[starts], nearest_t, winner_id, winner_id >= 0)
 
             for k in order:
                 q = int(candidates[k])
@@ -842,18 +845,11 @@ class Renderer:
                 along = cv2.transform(rays.tile_rays[tiles].reshape(-1, 1, 3), frames[q]).reshape(tiles.size, tile_pixels, 3)
                 with np.errstate(divide="ignore", invalid="ignore"):
                     t = plane_n[q] / along[..., 0]
-                current = depth[tiles]
-                hit = (t > _MIN_HIT_DISTANCE) & (t < current)
+                hit = (t > _MIN_HIT_DISTANCE) & (t < depth[tiles])
                 hit &= np.abs(t * along[..., 1] - centre_u[q]) <= half_w[q]
                 hit &= np.abs(t * along[..., 2] - centre_v[q]) <= half_h[q]
-                if not hit.any():
-                    continue
-                np.copyto(current, t, where=hit)
-                depth[tiles] = current
-                tile_far[tiles] = current.max(axis=1)
-                ids = quad_id[tiles]
-                np.copyto(ids, np.int32(q), where=hit)
-                quad_id[tiles] = ids
+                if hit.any():
+                    keep_nearer(tiles, t, np.int32(q), hit)
             test_batch()
             self.last_stats = {"candidates": int(candidates.size), "quads_tested": tested_quads, "ray_tests": tested_pixels}
         order = rays.image_order

@@ -17,8 +17,8 @@ from ampc_vo.solvers import ackermann_motion
 RIG = load_rig(Path(__file__).resolve().parents[2] / "configs" / "rigs" / "default.yaml")
 
 
-def _camera_bearings(camera, T_body_camera_points: np.ndarray) -> np.ndarray:
-    return T_body_camera_points / np.linalg.norm(T_body_camera_points, axis=1, keepdims=True)
+def _unit(points_camera: np.ndarray) -> np.ndarray:
+    return points_camera / np.linalg.norm(points_camera, axis=1, keepdims=True)
 
 
 def _pair(yaw_change: float, chord: float, rng: np.random.Generator) -> tuple[FrameObservations, FrameObservations]:
@@ -35,8 +35,8 @@ def _pair(yaw_change: float, chord: float, rng: np.random.Generator) -> tuple[Fr
     first, second = {}, {}
     for name, before, after in (("front", in_front, in_front_j), ("left", attached, attached)):
         ids = np.arange(len(before))
-        first[name] = CameraObservations(name, ids, np.zeros((len(ids), 2)), _camera_bearings(None, before))
-        second[name] = CameraObservations(name, ids, np.zeros((len(ids), 2)), _camera_bearings(None, after))
+        first[name] = CameraObservations(name, ids, np.zeros((len(ids), 2)), _unit(before))
+        second[name] = CameraObservations(name, ids, np.zeros((len(ids), 2)), _unit(after))
     return FrameObservations(0, 0.0, first), FrameObservations(1, 0.1, second)
 
 
