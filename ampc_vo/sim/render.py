@@ -219,7 +219,8 @@ class PreparedQuads:
     gain: np.ndarray        # (Q,) brightness factor
     road: np.ndarray        # (Q,) bool: paint lane markings
     horizontal: np.ndarray  # (Q,) bool: texture mapped from world (x, y); receives cast shadows
-    parent_height: np.ndarray    # (Q,) m: road width across (parent quad's height)
+    road_across: np.ndarray      # (Q,) m: across-road coordinate of the parent's b = 0 edge (from the carriageway's right edge)
+    road_width: np.ndarray       # (Q,) m: width of the carriageway the (road) quad belongs to
     centre: np.ndarray      # (Q, 3) bounding sphere
     radius: np.ndarray      # (Q,)
     parent: np.ndarray      # (Q,) int: index of the quad the piece was split from
@@ -236,9 +237,11 @@ _SUN_DIRECTION = np.array([0.45, 0.3, 0.84]) / np.linalg.norm([0.45, 0.3, 0.84])
 def _road_chain_offsets(quads: Sequence[Quad]) -> np.ndarray:
     """Along-road coordinate of each road quad's start, continuous over consecutive road quads.
 
-    Roads come as chains of short overlapping strips (``scene.build_scene``); the lane-marking dashes
-    must not restart on every strip. Consecutive road quads whose centre-line starts are close chain
-    up: the offset grows by the distance between their starts along the previous strip.
+    Roads come as chains of short overlapping strips (``scene.build_scene``; a chain per half of
+    the carriageway); the lane-marking dashes must not restart on every strip, and the halves'
+    dashes must meet at the centre line. Consecutive road quads whose starts on the carriageway's
+    centre line are close chain up: the offset grows by the distance between their starts along
+    the previous strip.
     """
     offsets = np.zeros(len(quads))
     previous: tuple[np.ndarray, np.ndarray, float, float] | None = None
@@ -246,7 +249,8 @@ def _road_chain_offsets(quads: Sequence[Quad]) -> np.ndarray:
         if quad.kind != "road":
             previous = None
             continue
-        start = np.asarray(quad.origin, float) + 0.5 * quad.height * np.asarray(quad.axis_v, float)
+        road_width = quad.road_width if quad.road_width > 0.0 else quad.height
+        start = np.asarray(quad.origin, float) + (0.5 * road_width - quad.road_across) * np.asarray(quad.axis_v, float)
         if previous is not None:
             prev_start, prev_u, prev_offset, prev_width = previous
             step = float((start - prev_start) @ prev_u)
@@ -372,7 +376,8 @@ def prepare_quads(quads: Sequence[Quad], atlas: TextureAtlas, options: RenderOpt
                 columns["gain"].append(gain)
                 columns["road"].append(quad.kind == "road" and options.road_markings)
                 columns["horizontal"].append(horizontal)
-                columns["parent_height"].append(quad.height)
+                columns["road_across"].append(quad.road_across)
+                columns["road_width"].append(quad.road_width if quad.road_width > 0.0 else quad.height)
                 columns["centre"].append(piece_origin + 0.5 * piece_w * axis_u + 0.5 * piece_h * axis_v)
                 columns["radius"].append(0.5 * math.hypot(piece_w, piece_h))
                 columns["parent"].append(parent_index)
@@ -380,7 +385,7 @@ def prepare_quads(quads: Sequence[Quad], atlas: TextureAtlas, options: RenderOpt
                 columns["piece_v"].append(j)
     if not columns["width"]:
         empty = {name: np.zeros((0, 3)) for name in ("origin", "axis_u", "axis_v", "normal", "centre")}
-        empty.update({name: np.zeros(0) for name in ("width", "height", "offset_a", "offset_b", "road_along", "texture_scale", "gain", "parent_height", "radius")})
+        empty.update({name: np.zeros(0) for name in ("width", "height", "offset_a", "offset_b", "road_along", "texture_scale", "gain", "road_across", "road_width", "radius")})
         empty.update({name: np.zeros(0, np.int64) for name in ("texture_index", "parent", "piece_u", "piece_v")})
         return PreparedQuads(**empty, texture_map=np.zeros((0, 2, 3)), road=np.zeros(0, bool), horizontal=np.zeros(0, bool))
     arrays = {name: np.asarray(values) for name, values in columns.items()}
@@ -957,8 +962,8 @@ class Renderer:
             t = visible.depth
             # Per-quad constants, gathered per pixel in one call (contiguous planes).
             constants = np.take(np.stack([atlas.size / quads.texture_scale, atlas.level_x[quads.texture_index] + (atlas.pad - 0.5),
-                                          quads.gain, quads.road, quads.road_along, quads.parent_height, quads.horizontal]).astype(np.float32), q, axis=1)
-            texels_per_m, texture_x, gain, road_flag, road_along, road_width, horizontal = constants
+                                          quads.gain, quads.road, quads.road_along, quads.road_across, quads.road_width, quads.horizontal]).astype(np.float32), q, axis=1)
+            texels_per_m, texture_x, gain, road_flag, road_along, road_across, road_width, horizontal = constants
             incidence = np.maximum(visible.cos_incidence, np.float32(0.02))
             incidence = np.sqrt(incidence) if options.incidence_exponent == 0.5 else incidence ** np.float32(options.incidence_exponent)
             pixel_m = t * rays.pixel_angle
@@ -994,7 +999,7 @@ class Renderer:
             road = np.flatnonzero(hit & (road_flag > 0))
             if road.size:
                 along = visible.coord_a.ravel()[road] + road_along.ravel()[road]
-                surface.ravel()[road] = _paint_markings(surface.ravel()[road], along, visible.coord_b.ravel()[road],
+                surface.ravel()[road] = _paint_markings(surface.ravel()[road], along, visible.coord_b.ravel()[road] + road_across.ravel()[road],
                                                         road_width.ravel()[road], pixel_m.ravel()[road], footprint_m.ravel()[road])
             if self.shadows is not None:  # horizontal quads: texture coordinates are world (x, y)
                 lit = self.shadows.sample(visible.texture_s, visible.texture_t)

@@ -40,6 +40,11 @@ class Quad:
     kind: str
     texture: str
     texture_scale: float = 4.0
+    # road quads: where the quad lies across its carriageway, for the lane markings: the across-road
+    # coordinate (m, from the carriageway's right edge) of its b = 0 edge, and the carriageway's
+    # width (0: the quad is the whole carriageway)
+    road_across: float = 0.0
+    road_width: float = 0.0
 
     @property
     def normal(self) -> np.ndarray:
@@ -312,7 +317,11 @@ def build_scene(trajectory: "Trajectory", rng: np.random.Generator, config: "Sce
         centre = road.lane_offset_m if road.centerline is None else 0.0
         grass_z = float(np.min(road.height(centerline.points[:, :2]))) - 1.0
     quads: list[Quad] = [Quad(np.array([low[0], low[1], grass_z]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), float(high[0] - low[0]), float(high[1] - low[1]), "ground", "grass", 4.0)]
-    quads += _strip_quads(centerline, centre - half_road, centre + half_road, _ROAD_Z, "road", "asphalt", 4.0, road)
+    # each half of the carriageway is a plane of its own: the crown turns the cross-slope over at the
+    # centre line (one plane across both halves lay up to crown x width / 4 off the lanes)
+    for lateral_from, lateral_to in ((centre - half_road, centre), (centre, centre + half_road)):
+        quads += [dataclasses.replace(quad, road_across=lateral_from - (centre - half_road), road_width=config.road_width)
+                  for quad in _strip_quads(centerline, lateral_from, lateral_to, _ROAD_Z, "road", "asphalt", 4.0, road)]
     quads += _strip_quads(centerline, centre + half_road, centre + half_road + config.shoulder_width, _SHOULDER_Z, "ground", "gravel", 3.0, road)
     quads += _strip_quads(centerline, centre - half_road - config.shoulder_width, centre - half_road, _SHOULDER_Z, "ground", "gravel", 3.0, road)
     if road is not None:
