@@ -255,7 +255,10 @@ class ScaleConfig:
     pitch and roll relative to the road (calibration, load, braking) when the calibrated plane is used;
     ``ground_plane_fit``: estimate the road plane's normal from the road points instead (grades,
     crown, suspension pitch; DESIGN 11), the calibrated normal a prior of
-    ``ground_normal_prior_sigma_deg`` per axis. ``cross_camera``: epipolar
+    ``ground_normal_prior_sigma_deg`` per axis. ``ground_lane_half_width_m``, ``ground_lane_length_m``:
+    road points from the truck's own lane only (within that distance of its path and along it from
+    the axle; the crown, shoulders and verges beyond slope otherwise; null: the whole view) when
+    there are enough there. ``cross_camera``: epipolar
     correspondences between two cameras of one body at different keyframes, associated by
     ``CameraObservations.landmark_ids`` (two-camera GEC: metric scale observable in straight driving),
     up to ``cross_camera_max_gap`` keyframes apart (``max_pair_gap`` in the single-body modes), gated at ``cross_camera_gate_px`` under the
@@ -272,6 +275,8 @@ class ScaleConfig:
     ground_normal_sigma_deg: float = 0.0
     ground_plane_fit: bool = True
     ground_normal_prior_sigma_deg: float = 2.0
+    ground_lane_half_width_m: float | None = 2.0
+    ground_lane_length_m: float = 25.0
     cross_camera: bool = True
     cross_camera_max_gap: int = 6
     cross_camera_gate_px: float = 10.0
@@ -294,6 +299,9 @@ class ScaleConfig:
         _positive(self.ground_height_sigma_m, where + "ground_height_sigma_m")
         _at_least(self.ground_normal_sigma_deg, 0.0, where + "ground_normal_sigma_deg")
         _positive(self.ground_normal_prior_sigma_deg, where + "ground_normal_prior_sigma_deg")
+        if self.ground_lane_half_width_m is not None:
+            _positive(self.ground_lane_half_width_m, where + "ground_lane_half_width_m")
+        _positive(self.ground_lane_length_m, where + "ground_lane_length_m")
         _at_least(self.cross_camera_max_gap, 1, where + "cross_camera_max_gap")
         _positive(self.cross_camera_gate_px, where + "cross_camera_gate_px")
         _positive(self.stereo_max_depth_m, where + "stereo_max_depth_m")

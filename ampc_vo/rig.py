@@ -90,6 +90,14 @@ class Camera:
         """Camera centre in the body frame (``t_body_camera``, the paper's ``t_AC``)."""
         return self.T_body_camera[:3, 3]
 
+    def row_times(self, pixels: np.ndarray) -> np.ndarray:
+        """Seconds after the image's capture time at which pixels (N, 2) were exposed (rolling
+        shutter: ``readout_time * row / (height - 1)``; 0 for a global shutter)."""
+        pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
+        if self.readout_time <= 0.0 or self.height < 2:
+            return np.zeros(pixels.shape[0])
+        return self.readout_time * pixels[:, 1] / (self.height - 1)
+
     @property
     def K(self) -> np.ndarray:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])

@@ -49,6 +49,8 @@ class CameraPairs:
     bearings_j: np.ndarray
     body_bearings_i: np.ndarray
     body_bearings_j: np.ndarray
+    times_i: np.ndarray | None = None  # capture time of each observation (s): the camera's image time + its row's readout
+    times_j: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.track_ids.shape[0])
@@ -71,7 +73,10 @@ def camera_pairs(rig: Rig, body: str, first: FrameObservations, second: FrameObs
             continue
         bearings_i, bearings_j = observations_i.bearings[index_i], observations_j.bearings[index_j]
         R_body_camera = camera.R_body_camera
-        pairs.append(CameraPairs(camera, observations_i.track_ids[index_i], bearings_i, bearings_j, bearings_i @ R_body_camera.T, bearings_j @ R_body_camera.T))
+        times_i = first.camera_timestamp(camera.name) + camera.row_times(observations_i.pixels[index_i])
+        times_j = second.camera_timestamp(camera.name) + camera.row_times(observations_j.pixels[index_j])
+        pairs.append(CameraPairs(camera, observations_i.track_ids[index_i], bearings_i, bearings_j, bearings_i @ R_body_camera.T, bearings_j @ R_body_camera.T,
+                                 times_i, times_j))
     return pairs
 
 
@@ -158,7 +163,8 @@ class MotionInitializer:
         self._ground_options = GroundScaleOptions(
             ground_z=rig.ground_z, pixel_sigma=config.smoother.pixel_sigma, height_sigma_m=config.scale.ground_height_sigma_m,
             normal_sigma=float(np.radians(config.scale.ground_normal_sigma_deg)), fit_plane=config.scale.ground_plane_fit,
-            normal_prior_sigma=float(np.radians(config.scale.ground_normal_prior_sigma_deg)))
+            normal_prior_sigma=float(np.radians(config.scale.ground_normal_prior_sigma_deg)),
+            lane_half_width_m=config.scale.ground_lane_half_width_m, lane_length_m=config.scale.ground_lane_length_m)
         self._stereo_options = StereoScaleOptions(pixel_sigma=config.smoother.pixel_sigma, max_depth_m=config.scale.stereo_max_depth_m)
 
     def tractor(self, first: FrameObservations, second: FrameObservations, predicted: np.ndarray, prediction_sigma: float | None = None,
@@ -342,10 +348,14 @@ class MotionInitializer:
         if not self.config.scale.ground_plane or init.tractor_status not in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE):
             return init
         correspondences = []
+        interval = second.timestamp - first.timestamp
         for pair in pairs:
             inlier_ids = init.inlier_tracks.get(pair.camera.name)
             keep = np.isin(pair.track_ids, inlier_ids) if inlier_ids is not None else np.ones(len(pair), bool)
-            correspondences.append((pair.camera, pair.bearings_i[keep], pair.bearings_j[keep]))
+            # each observation's own capture time (unsynchronised, rolling-shutter cameras): the
+            # point's baseline is the keyframes' motion over its own time interval
+            time_scale = None if pair.times_i is None or interval <= 0.0 else (pair.times_j[keep] - pair.times_i[keep]) / interval
+            correspondences.append((pair.camera, pair.bearings_i[keep], pair.bearings_j[keep], time_scale))
         yaw_sigma = max(float(yaw_sigma), _MIN_YAW_SIGMA) if np.isfinite(yaw_sigma) else _DEFAULT_YAW_SIGMA
         measured = ground_plane_chord(correspondences, init.T_tractor, self.rig.axle_x("tractor"), self._ground_options, yaw_sigma)
         if not measured.ok:

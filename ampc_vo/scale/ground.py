@@ -60,6 +60,32 @@ of a few pitch hypotheses (1-D MSAC per hypothesis) and re-selecting the inliers
 The chord's sigma is its marginal (the tilt's uncertainty included), Birge-inflated, with the
 height term. ``fit_plane=False``: the calibrated plane, ``normal_sigma`` widening its sigma.
 
+**Own lane** (issue 16; ``lane_half_width_m``, ``lane_length_m``). The road is a plane only
+locally: a crown turns the cross-slope over at the centre line (2-3 % each way), shoulders and
+verges slope otherwise, and a vertical curve bends the road away from the plane under the axles
+(by ``x² / 2K``, 10 cm at 20 m on a K = 2000 m curve). Seen from a camera 2-3 m high, road points
+5-30 cm off the plane bias their chord by that over the height: on a crowned road the whole view
+gave chords 3 % short (the other lane lies below the own lane's plane extended). The road points
+are therefore taken from the truck's own lane, where its axles stand on the plane (G) assumes:
+the bearings meeting the calibrated road plane within ``lane_half_width_m`` (2 m: half a 3.5-3.75
+m lane plus its markings) of the axle's path (a circular arc of the motion's curvature, ahead and
+behind) and within ``lane_length_m`` (25 m) of the axle along it, when at least
+``min_lane_points`` (15) candidates lie there; else the whole view, as before (a lane without
+texture). The lane is also where the traffic ahead drives: a vehicle moving along the truck's
+path, and its shadow on the road, are consistent with the ego-motion's epipolar geometry at
+another depth and read as chords tens of % short. So the lane's points are those within
+``lane_consensus_tolerance`` (15 %) of the whole view's road (1-D consensus over every
+candidate, where the static road is the majority).
+
+**Capture times** (rolling shutter, unsynchronised cameras). A point is seen at its own times:
+its camera's image time plus its row's readout (``Camera.row_times``), in both keyframes. Over a
+constant-velocity arc the body moves by the keyframes' motion times ``s_k = (tau_j - tau_i) /
+(t_j - t_i)`` between the point's two observations, so (G) measures ``s_k rho``: each point's
+chord is divided by its ``s_k``. With a 30 ms readout a road point that moves 100 rows between
+keyframes 0.1 s apart is seen over 106 ms: forward cameras (road points move down the image)
+read chords ~4 % long at 25 m/s, cameras looking back ~6 % short (bearings of the realistic
+motorway), where the keyframes' own rotation is kept (its share is second order).
+
 **Sensitivities** (what the measurement trusts). A road normal off by δ (e.g. an uncalibrated
 camera pitch) biases the chord by about ``D δ / h`` for road points at distance D: 1° at 10 m and
 1.65 m height is ~10 %, so the cameras' pitch relative to the road must be calibrated in the rig
@@ -122,7 +148,11 @@ class GroundScaleOptions:
     ``normal_search``: the tilt hypotheses (radians, about the body y and x axes) the consensus
     starts from (default: the calibrated plane only; a grid lets wall points below the horizon
     buy a tilted "road" with their support); ``plane_rounds``: Gauss-Newton steps and inlier
-    re-selections of the plane fit.
+    re-selections of the plane fit. ``lane_half_width_m``, ``lane_length_m``: the road points are
+    taken from the truck's own lane (module docstring, "Own lane"): within this lateral distance of
+    its path and this distance along it from the axle, when at least ``min_lane_points`` candidates
+    lie there (enough for the plane's three parameters with some redundancy; ``None``: the whole view)
+    and agree within ``lane_consensus_tolerance`` (relative) with the whole view's road.
     """
 
     ground_z: float = 0.0
@@ -141,6 +171,10 @@ class GroundScaleOptions:
     normal_prior_sigma: float = np.deg2rad(2.0)
     normal_search: tuple[tuple[float, ...], tuple[float, ...]] = (tuple(np.deg2rad([-3.0, -1.5, 0.0, 1.5, 3.0])), (0.0,))
     plane_rounds: int = 6
+    lane_half_width_m: float | None = 2.0
+    lane_length_m: float = 25.0
+    min_lane_points: int = 15
+    lane_consensus_tolerance: float = 0.15
 
 
 def tilted_normal(tilt: np.ndarray) -> np.ndarray:
@@ -193,16 +227,17 @@ class _Rays:
     direction: np.ndarray
     offset: np.ndarray
     normal: np.ndarray = dataclasses.field(default_factory=lambda: _E_Z.copy())  # the road normal ``chord`` was evaluated with
+    time_scale: np.ndarray | float = 1.0  # each point's observation interval over the keyframes' (module docstring, "Capture times")
 
     def chords(self, normal: np.ndarray | None = None, yaw_error: float = 0.0) -> np.ndarray:
         """(G) with a road ``normal`` (default body z) and the motion's yaw change increased by
         ``yaw_error`` (R -> Rz(e) R, chord direction turned by e / 2: the Ackermann family)."""
         normal = _E_Z if normal is None else normal
         if yaw_error == 0.0:
-            return _chord_of_rays(self.f, self.g, self.height, self.baseline0, self.direction, normal)
+            return _chord_of_rays(self.f, self.g, self.height, self.baseline0, self.direction, normal) / self.time_scale
         turn = rot_z(yaw_error)
         baseline0 = turn @ self.baseline0 + (turn - np.eye(3)) @ self.offset
-        return _chord_of_rays(self.f, self.g @ turn.T, self.height, baseline0, rot_z(0.5 * yaw_error) @ self.direction, normal)
+        return _chord_of_rays(self.f, self.g @ turn.T, self.height, baseline0, rot_z(0.5 * yaw_error) @ self.direction, normal) / self.time_scale
 
 
 @dataclass(frozen=True)
@@ -267,11 +302,13 @@ def _tangent_basis(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def point_chords(camera: Camera, bearings_i: np.ndarray, bearings_j: np.ndarray, T_i_j: np.ndarray, axle_x: float,
-                 options: GroundScaleOptions = GroundScaleOptions()) -> PointChords:
+                 options: GroundScaleOptions = GroundScaleOptions(), time_scale: np.ndarray | None = None) -> PointChords:
     """Equation (G) and its propagated sigma for every correspondence of one camera (module docstring).
 
     ``bearings_i``, ``bearings_j``: (N, 3) camera-frame bearings of the same points in keyframes i
     and j; ``T_i_j``: body motion (rotation trusted, translation only for the chord direction).
+    ``time_scale`` (N,): each point's time between its two observations over the keyframes'
+    interval (rolling shutter, unsynchronised cameras; module docstring, "Capture times"); None: 1.
     Raises :class:`ampc_vo.errors.BearingError` for malformed bearings.
     """
     bearings_i = check_bearings(bearings_i, "bearings_i")
@@ -296,14 +333,16 @@ def point_chords(camera: Camera, bearings_i: np.ndarray, bearings_j: np.ndarray,
     stacked_g = np.concatenate([g, g, g, *g_moved])
     stacked_f /= np.linalg.norm(stacked_f, axis=1, keepdims=True)
     stacked_g /= np.linalg.norm(stacked_g, axis=1, keepdims=True)
-    values = _chord_of_rays(stacked_f, stacked_g, height, baseline0, direction).reshape(5, count)
+    scale = np.ones(count) if time_scale is None else np.asarray(time_scale, dtype=float).reshape(count)
+    scale = np.where(np.isfinite(scale) & (scale > 0.0), scale, np.nan)
+    values = _chord_of_rays(stacked_f, stacked_g, height, baseline0, direction).reshape(5, count) / scale
     rho = values[0]
     variance = np.sum(((values[1:] - rho) / _DIFFERENCE_STEP) ** 2, axis=0)
     parallax = np.arccos(np.clip(_rowdot(f, g), -1.0, 1.0))
     bearing_sigma = options.pixel_sigma / (0.5 * (camera.fx + camera.fy))
     sigma = bearing_sigma * np.sqrt(variance)
-    # positive depths on both rays at the point's own chord
-    baseline = baseline0 + rho[:, None] * direction
+    # positive depths on both rays at the point's own chord (over its own observation interval)
+    baseline = baseline0 + (rho * scale)[:, None] * direction
     k = _rowdot(f, g)
     with np.errstate(divide="ignore", invalid="ignore"):
         depth_i = (_rowdot(f, baseline) - k * _rowdot(g, baseline)) / (1.0 - k * k)
@@ -315,7 +354,50 @@ def point_chords(camera: Camera, bearings_i: np.ndarray, bearings_j: np.ndarray,
     )
     midpoint = center + 0.5 * (depth_i[:, None] * f + baseline + depth_j[:, None] * g)
     offset = center - np.array([axle_x, 0.0, 0.0])
-    return PointChords(rho, sigma, candidate, parallax, midpoint[:, :2], _Rays(f, g, height, baseline0, direction, offset))
+    return PointChords(rho, sigma, candidate, parallax, midpoint[:, :2], _Rays(f, g, height, baseline0, direction, offset, time_scale=scale))
+
+
+def in_own_lane(f: np.ndarray, offset: np.ndarray, height: float, curvature: float, options: GroundScaleOptions) -> np.ndarray:
+    """Mask of body-frame bearings ``f`` (N, 3) from a camera at ``offset`` from the axle midpoint,
+    ``height`` above the road, that meet the calibrated road plane in the truck's own lane (module
+    docstring, "Own lane"): within ``lane_half_width_m`` of the axle's path (the arc
+    ``y = curvature x² / 2``, x along the body from the axle, ahead and behind) and within
+    ``lane_length_m`` of the axle along it. All True without a lane."""
+    if options.lane_half_width_m is None:
+        return np.ones(f.shape[0], bool)
+    downward = f[:, 2] < 0.0
+    reach = height / np.where(downward, -f[:, 2], 1.0)
+    along = offset[0] + reach * f[:, 0]
+    lateral = offset[1] + reach * f[:, 1] - 0.5 * curvature * along**2
+    return downward & (np.abs(lateral) <= options.lane_half_width_m) & (np.abs(along) <= options.lane_length_m)
+
+
+def _within_lane(per_camera: Sequence[PointChords], yaw_per_travel: float, options: GroundScaleOptions) -> list[PointChords]:
+    """``per_camera`` with the candidates restricted to the own lane (:func:`in_own_lane`): those
+    that agree within ``lane_consensus_tolerance`` with the whole view's road (the 1-D consensus of
+    :func:`robust_chord` over every candidate: moving traffic in the lane ahead and its shadow on
+    the road, which the ego-motion's epipolar geometry cannot tell from the static road, read as
+    chords tens of % off, the road's shape beyond the lane a few %), when at least
+    ``min_lane_points`` remain; unchanged otherwise (a lane without texture: the whole view is a
+    better measurement than none). The path's curvature is ``yaw_per_travel`` (the yaw change, its
+    sign flipped when reversing) over the whole view's chord: the given motion's has no scale."""
+    if options.lane_half_width_m is None:
+        return list(per_camera)
+    chords = np.concatenate([points.chord[points.candidate] for points in per_camera])
+    sigmas = np.concatenate([points.sigma[points.candidate] for points in per_camera])
+    whole = robust_chord(chords, sigmas, options) if chords.size else None
+    if whole is None:
+        return list(per_camera)
+    road_chord = whole[0]
+    curvature = yaw_per_travel / road_chord
+    in_lane = []
+    for points in per_camera:
+        agrees = np.abs(points.chord - road_chord) < np.maximum(options.lane_consensus_tolerance * road_chord, options.consensus_sigmas * points.sigma)
+        lane = in_own_lane(points.rays.f, points.rays.offset, points.rays.height, curvature, options) if points.rays is not None else False
+        in_lane.append(points.candidate & agrees & lane)
+    if sum(int(np.count_nonzero(mask)) for mask in in_lane) < max(options.min_lane_points, options.min_points):
+        return list(per_camera)
+    return [dataclasses.replace(points, candidate=mask) for points, mask in zip(per_camera, in_lane)]
 
 
 def _no_point_chords(count: int) -> PointChords:
@@ -517,7 +599,8 @@ def ground_plane_chord(
     """Metric chord of the axle midpoint (``axle_x``) between keyframes i and j from road points.
 
     ``correspondences``: per camera of the body, ``(camera, bearings_i, bearings_j)`` with (N, 3)
-    camera-frame bearings of the same points in both keyframes. ``T_i_j``: the body motion
+    camera-frame bearings of the same points in both keyframes, optionally with a fourth element,
+    the points' ``time_scale`` (N,) (:func:`point_chords`; rolling shutter, unsynchronised cameras). ``T_i_j``: the body motion
     estimated up to scale (rotation, and the direction of the axle chord). All cameras' road points
     vote on the same chord. ``yaw_sigma``: uncertainty (radians) of the motion's yaw change; a
     yaw error biases each camera's chord differently (side cameras strongly), so with it the
@@ -528,15 +611,18 @@ def ground_plane_chord(
     T_i_j = np.asarray(T_i_j, dtype=float)
     if axle_chord_direction(T_i_j, axle_x) is None:
         return GroundChord(GroundScaleStatus.NO_MOTION_DIRECTION)
-    heights = np.array([float(camera.center[2] - options.ground_z) for camera, _, _ in correspondences])
+    heights = np.array([float(correspondence[0].center[2] - options.ground_z) for correspondence in correspondences])
     if heights.size and np.all(heights <= 0.0):
         return GroundChord(GroundScaleStatus.CAMERA_NOT_ABOVE_ROAD)
-    per_camera = [point_chords(camera, bearings_i, bearings_j, T_i_j, axle_x, options) for camera, bearings_i, bearings_j in correspondences]
+    per_camera = [point_chords(*correspondence[:3], T_i_j, axle_x, options, *correspondence[3:4]) for correspondence in correspondences]
     if sum(points.chord.size for points in per_camera) == 0:
         return GroundChord(GroundScaleStatus.TOO_FEW_GROUND_POINTS)
     parallax = np.concatenate([points.parallax for points in per_camera])
     if parallax.size and float(np.median(parallax)) < options.min_parallax:
         return GroundChord(GroundScaleStatus.SMALL_BASELINE)
+    # the path's curvature is the yaw change over the signed chord (negative: reversing)
+    travel = 1.0 if axle_chord_direction(T_i_j, axle_x)[0] >= 0.0 else -1.0
+    per_camera = _within_lane(per_camera, travel * float(np.arctan2(T_i_j[1, 0], T_i_j[0, 0])), options)
     chords = np.concatenate([points.chord[points.candidate] for points in per_camera])
     sigmas = np.concatenate([points.sigma[points.candidate] for points in per_camera])
     plane = fit_road_plane(per_camera, sigmas, options) if options.fit_plane else None

@@ -37,6 +37,7 @@ from ampc_vo.solvers.estimates import (
 logger = logging.getLogger(__name__)
 
 _TIGHTEST_TURN_RADIUS_M = 4.0  # below any truck's rear-axle turning radius (about 6-9 m for tractors)
+_SAMPLE_YAW_TOLERANCE = float(np.radians(0.3))  # yaw noise of a 2-point sample, beside that radius
 
 
 # ---------------------------------------------------------------------- scoring
@@ -152,10 +153,10 @@ def estimate_tractor_motion(
     if not _scale_is_known(refined, chord_sigma, config):
         return _scale_unobservable(groups, pool[0], axle_x, config, chord_prior, drawn, chord_sigma)
     count = int(np.sum(refined_inliers))
+    yaw_sigma = float(np.sqrt(covariance[0, 0]))
     if count < config.min_inliers:
         return TractorMotionEstimate(SolverStatus.NO_CONSENSUS, inlier_masks=empty_masks, num_hypotheses=drawn)
     masks = _split(refined_inliers, groups)
-    yaw_sigma = float(np.sqrt(covariance[0, 0]))
     if abs(refined_chord) < config.min_chord:
         if moving or abs(refined_yaw) > max(3.0 * yaw_sigma, config.min_chord / _TIGHTEST_TURN_RADIUS_M):
             # A truck cannot turn on the spot (nor be known to move and stand still): the chord was
@@ -163,9 +164,19 @@ def estimate_tractor_motion(
             prior = (cost, refined_yaw, chord_prior if chord_prior is not None else refined_chord, refined_inliers)
             return _scale_unobservable(groups, prior, axle_x, config, chord_prior, drawn, chord_sigma)
         return TractorMotionEstimate(SolverStatus.STANDSTILL, 0.0, 0.0, np.eye(4), masks, count, drawn, yaw_sigma, chord_sigma, 1.0, rms)
+    if not _drivable(refined_yaw, refined_chord, 3.0 * yaw_sigma):
+        return TractorMotionEstimate(SolverStatus.NO_CONSENSUS, inlier_masks=empty_masks, num_hypotheses=drawn)
     T_i_j = make_pose(*ackermann_motion(refined_yaw, refined_chord, axle_x))
     sign = 1.0 if refined_chord >= 0 else -1.0
     return TractorMotionEstimate(SolverStatus.OK, refined_yaw, refined_chord, T_i_j, masks, count, drawn, yaw_sigma, chord_sigma, sign, rms)
+
+
+def _drivable(yaw_change: np.ndarray | float, chord: np.ndarray | float, yaw_tolerance: np.ndarray | float) -> np.ndarray | bool:
+    """Whether a truck can drive a motion: the axle's turn radius ``|chord / yaw_change|`` not
+    below ``_TIGHTEST_TURN_RADIUS_M``, within ``yaw_tolerance`` (radians) of the yaw change. Moving
+    traffic at a near-standstill makes consensus motions no truck can make (10 degrees in 10 cm)."""
+    tolerance = np.where(np.isfinite(yaw_tolerance), yaw_tolerance, 0.0)
+    return np.abs(yaw_change) <= np.abs(chord) / _TIGHTEST_TURN_RADIUS_M + tolerance
 
 
 def _sample_tractor_hypotheses(
@@ -184,6 +195,7 @@ def _sample_tractor_hypotheses(
         drawn += config.batch_size
         sample = np.stack([first, second], axis=1)
         yaw, chord, valid = tractor_motion_2pt_batch(bearings_i[sample], bearings_j[sample], centers[sample], axle_x)
+        valid &= _drivable(yaw, chord, _SAMPLE_YAW_TOLERANCE)
         if not np.any(valid):
             continue
         yaw, chord = yaw[valid], chord[valid]

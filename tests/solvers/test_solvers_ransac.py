@@ -191,3 +191,18 @@ def test_chord_direction_model_error_makes_near_straight_scale_unobservable(rig:
     turning = make_two_view_problem(rng, rig=rig, pixel_noise_px=0.1, yaw_change=np.deg2rad(6.0), chord=2.0)
     estimate = estimate_tractor_motion(turning.groups("tractor"), turning.tractor_axle_x, modelled)
     assert estimate.status is SolverStatus.OK and abs(estimate.chord - 2.0) < 0.05
+
+
+def test_tractor_ransac_proposes_only_motions_a_truck_can_drive(rig: Rig) -> None:
+    """Moving traffic at a near-standstill makes consensus motions no truck can drive (a 10 degree
+    turn within 10 cm). The 2-point samples are kept only within the tightest turn radius (4 m at
+    the axle): such a motion is not returned, while a full-lock turn (5.5 m radius) is found."""
+    rng = np.random.default_rng(35)
+    for _ in range(5):
+        tight = make_two_view_problem(rng, rig=rig, **{**DESIGN_2_3, "chord": 0.6, "yaw_change": 0.6 / 5.5})
+        estimate = estimate_tractor_motion(tight.groups("tractor"), tight.tractor_axle_x)
+        assert estimate.status is SolverStatus.OK
+        assert np.rad2deg(abs(estimate.yaw_change - tight.yaw_change)) < 0.2
+        spinning = make_two_view_problem(rng, rig=rig, **{**DESIGN_2_3, "chord": 0.1, "yaw_change": np.deg2rad(10.0)})
+        estimate = estimate_tractor_motion(spinning.groups("tractor"), spinning.tractor_axle_x)
+        assert estimate.status is not SolverStatus.OK or abs(estimate.yaw_change) < 0.5 * spinning.yaw_change
