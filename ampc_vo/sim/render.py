@@ -266,6 +266,11 @@ def _times(vectors: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     return vectors[:, 0:1] * matrix[0] + vectors[:, 1:2] * matrix[1] + vectors[:, 2:3] * matrix[2]
 
 
+def _dot_rows(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Row-wise dot products (N,) of two (N, 3) arrays, as three products (the dtype of the inputs)."""
+    return first[:, 0] * second[:, 0] + first[:, 1] * second[:, 1] + first[:, 2] * second[:, 2]
+
+
 _NEAR_PLANE_M = 1e-3
 
 
@@ -446,6 +451,17 @@ _BATCH_MAX_TILES = 4   # quads on at most this many tiles are ray-tested in batc
 _BATCH_QUADS = 64
 _SUBPIXEL_FRACTION = 0.25  # quads below this share of a pixel's solid angle are not rendered
 _COARSE_FACTOR = 8  # pieces per side of a coarse block (level of detail beyond detail_distance_m)
+
+
+def _tiles_in_boxes(box: np.ndarray, tiles_x: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every tile of each non-empty box ``(first column, last column, first row, last row)`` (B, 4)
+    int of a grid ``tiles_x`` tiles wide, as pairs ``(box index, tile index)``: by box, then by tile."""
+    columns = box[:, 1] - box[:, 0] + 1
+    counts = columns * (box[:, 3] - box[:, 2] + 1)
+    owner = np.repeat(np.arange(len(box)), counts)
+    local = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+    width = columns[owner]
+    return owner, (box[owner, 2] + local // width) * tiles_x + box[owner, 0] + local % width
 
 
 def coarsen_pieces(pieces: PreparedQuads, factor: int) -> tuple[PreparedQuads, np.ndarray]:
@@ -653,12 +669,15 @@ class Renderer:
     # ------------------------------------------------------------------ visibility
     def _candidate_tiles(self, camera: Camera, rays: CameraRays, quads: PreparedQuads,
                          centre: np.ndarray, origin_c: np.ndarray, normal_c: np.ndarray,
-                         outline_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Quads that may be visible and, per quad, the tiles its rays may hit (conservative).
+                         outline_c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Quads that may be visible and, per quad, the tiles its rays may hit (conservative):
+        ``(candidates (C,), tiles (N,), starts (C + 1,))``, the tiles of candidate ``k`` being
+        ``tiles[starts[k]:starts[k + 1]]`` in increasing order.
 
         Three tests, all conservative: for quads entirely in front of the lens, the image bounding
         box of their projected outline; the quad's bounding sphere against each tile's ray cone;
         and the quad's plane must be reachable from the tile (some ray points towards its side).
+        The last two are evaluated on the tiles of the bounding box only (quad-tile pairs).
         """
         distance = np.linalg.norm(centre, axis=1)
         inside = distance <= quads.radius * 1.0001
@@ -672,9 +691,8 @@ class Renderer:
         pixel_solid_angle = rays.smallest_pixel_angle**2
         in_view &= inside | (quads.width * quads.height >= _SUBPIXEL_FRACTION * pixel_solid_angle * safe_distance**2)
         candidates = np.flatnonzero(in_view)
-        num_tiles = len(rays.tile_axis)
         if candidates.size == 0:
-            return candidates, np.zeros((0, num_tiles), bool)
+            return candidates, np.zeros(0, np.int64), np.zeros(1, np.int64)
         # Tile-grid bounding box of the projected outline when all of it is safely in front.
         outline = outline_c[candidates]  # (C, S, 3)
         flat = outline.reshape(-1, 3)
@@ -733,22 +751,31 @@ class Renderer:
         nonempty = ((box[:, 0] <= box[:, 1]) & (box[:, 2] <= box[:, 3])) | wide
         candidates, box, wide = candidates[nonempty], box[nonempty], wide[nonempty]
         if candidates.size == 0:
-            return candidates, np.zeros((0, num_tiles), bool)
-        overlap = ((rays.tile_col[None, :] >= box[:, 0:1]) & (rays.tile_col[None, :] <= box[:, 1:2])
-                   & (rays.tile_row[None, :] >= box[:, 2:3]) & (rays.tile_row[None, :] <= box[:, 3:4]))
+            return candidates, np.zeros(0, np.int64), np.zeros(1, np.int64)
+        # Quad-tile pairs of the boxes (quads seeing behind the lens: every tile, kept if in the box or beyond 90 deg).
+        pair_box = box.copy()
+        pair_box[wide] = (0, tiles_x - 1, 0, tiles_y - 1)
+        owner, tile = _tiles_in_boxes(pair_box.astype(np.int64), tiles_x)
         if wide.any():
-            overlap[wide] |= rays.tile_beyond_90[None, :]
+            col, row = tile % tiles_x, tile // tiles_x
+            in_box = (col >= box[owner, 0]) & (col <= box[owner, 1]) & (row >= box[owner, 2]) & (row <= box[owner, 3])
+            chosen = ~wide[owner] | in_box | rays.tile_beyond_90[tile]
+            owner, tile = owner[chosen], tile[chosen]
+        tile_axis = rays.tile_axis_f32[tile]
         # Sphere vs tile cone: angle(axis, centre) <= half_t + radius_q, as cos(angle) >= cos(sum).
-        direction = (centre[candidates] / safe_distance[candidates, None]).astype(np.float32)
-        cos_angle = _times(direction, rays.tile_axis_f32.T)
-        total = rays.tile_half_angle_f32[None, :] + angular_radius[candidates, None].astype(np.float32)
-        overlap &= (cos_angle >= np.cos(np.minimum(total, np.float32(np.pi)))) | inside[candidates, None]
+        direction = (centre[candidates] / safe_distance[candidates, None]).astype(np.float32)[owner]
+        cos_angle = _dot_rows(direction, tile_axis)
+        total = rays.tile_half_angle_f32[tile] + angular_radius[candidates].astype(np.float32)[owner]
+        keep = (cos_angle >= np.cos(np.minimum(total, np.float32(np.pi)))) | inside[candidates][owner]
         # Plane side: need a ray d of the tile with sign(d.n) == sign(o.n).
         side = np.sign(np.einsum("qk,qk->q", origin_c[candidates], normal_c[candidates]))
-        toward = _times((side[:, None] * normal_c[candidates]).astype(np.float32), rays.tile_axis_f32.T)
-        overlap &= toward > -rays.tile_sin_half[None, :]
-        keep = overlap.any(axis=1)
-        return candidates[keep], overlap[keep]
+        facing = (side[:, None] * normal_c[candidates]).astype(np.float32)[owner]
+        toward = _dot_rows(facing, tile_axis)
+        keep &= toward > -rays.tile_sin_half[tile]
+        owner, tile = owner[keep], tile[keep]
+        counts = np.bincount(owner, minlength=candidates.size)
+        seen = counts > 0
+        return candidates[seen], tile, np.concatenate([[0], np.cumsum(counts[seen])])
 
     def depth_pass(self, camera: Camera, T_world_camera: np.ndarray, extra: PreparedQuads | None = None) -> VisibilityBuffer:
         """Nearest hit per pixel (ray casting with a depth test), as a :class:`VisibilityBuffer`."""
@@ -774,7 +801,8 @@ class Renderer:
             o = origin_c[:, None, :]
             outline = np.concatenate([o + along_u, o + w * u_c[:, None, :] + along_v,
                                       o + h * v_c[:, None, :] + w * u_c[:, None, :] - along_u, o + h * v_c[:, None, :] - along_v], axis=1)
-            candidates, overlap = self._candidate_tiles(camera, rays, quads, centre, origin_c, n_c, outline)
+            candidates, candidate_tiles, tile_starts = self._candidate_tiles(camera, rays, quads, centre, origin_c, n_c, outline)
+            tile_starts = tile_starts.tolist()
             nearest = np.linalg.norm(centre[candidates], axis=1) - quads.radius[candidates]
             order = np.argsort(nearest)
             axes_c = np.stack([n_c, u_c, v_c], axis=2).astype(np.float32)  # (Q, 3, 3): columns n, u, v
@@ -826,7 +854,7 @@ class Renderer:
 
             for k in order:
                 q = int(candidates[k])
-                tiles = np.flatnonzero(overlap[k])
+                tiles = candidate_tiles[tile_starts[k]:tile_starts[k + 1]]
                 tiles = tiles[tile_far[tiles] > nearest[k]]
                 if tiles.size == 0:
                     continue
