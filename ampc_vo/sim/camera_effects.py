@@ -128,10 +128,15 @@ class ImageFormation:
 _GRID_STEP = 4  # px between the points on which the motion field is computed exactly
 
 
-def _points_at(points: np.ndarray, finite: np.ndarray, dt: np.ndarray, velocity: np.ndarray, omega: np.ndarray) -> np.ndarray:
+def _point_motion(points: np.ndarray, finite: np.ndarray, velocity: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """``omega x X + v`` (N, 3) for camera-frame points X: they change at minus this rate as the
+    camera moves (directions to the sky, ``finite`` false, only rotate)."""
+    return np.cross(omega, points) + np.where(finite[:, None], velocity, 0.0)
+
+
+def _points_at(points: np.ndarray, motion: np.ndarray, dt: np.ndarray) -> np.ndarray:
     """Camera-frame points (N, 3) at ``dt`` (N,) after the rendered pose (first order in the motion:
-    ``X(dt) = X - dt (omega x X + v)``; directions to the sky only rotate)."""
-    motion = np.cross(omega, points) + np.where(finite[:, None], velocity, 0.0)
+    ``X(dt) = X - dt (omega x X + v)``, ``motion`` from :func:`_point_motion`)."""
     return points - dt[:, None] * motion
 
 
@@ -175,14 +180,15 @@ def form_image(camera: Camera, render_with_depth: Callable[[np.ndarray, float, i
     source = np.stack([grid_u.ravel(), grid_v.ravel()], axis=1).astype(np.float64)
     target = source.copy()
     dt = np.zeros(len(points))
+    motion = _point_motion(points, finite, velocity, omega)
     if readout > 0:
         for _ in range(4):  # fixed point: the row a point lands in sets its time (camera_timing)
             dt = capture_time + readout * np.clip(target[:, 1], 0, height - 1) / (height - 1) - middle
-            target, valid = camera.project(_points_at(points, finite, dt, velocity, omega))
+            target, valid = camera.project(_points_at(points, motion, dt))
         target = np.where(valid[:, None] & np.isfinite(target), target, source)
     step = 1e-3
-    ahead, valid_ahead = camera.project(_points_at(points, finite, dt + step, velocity, omega))
-    behind, valid_behind = camera.project(_points_at(points, finite, dt - step, velocity, omega))
+    ahead, valid_ahead = camera.project(_points_at(points, motion, dt + step))
+    behind, valid_behind = camera.project(_points_at(points, motion, dt - step))
     image_velocity = np.where((valid_ahead & valid_behind)[:, None], (ahead - behind) / (2 * step), 0.0)
     shape = grid_u.shape
 

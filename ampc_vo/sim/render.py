@@ -1008,8 +1008,9 @@ class Renderer:
             # Level l starts at row 2 S (1 - 2^-l) + 2 pad l of the atlas (build_atlas stacks levels),
             # so map_y = 2 S + pad - 0.5 + 2 pad l + (t - 2 S) 2^-l: no per-pixel table lookups.
             level_rows = (level0 * (2 * atlas.pad) + (2 * atlas.size)).astype(np.float32) + np.float32(atlas.pad - 0.5)
-            map_x0 = np.ldexp(s_texels, -level0).astype(np.float32, copy=False)
-            map_y0 = np.ldexp(t_texels - np.float32(2 * atlas.size), -level0).astype(np.float32, copy=False)
+            level_scale = np.ldexp(np.float32(1.0), -np.arange(atlas.num_levels, dtype=np.int32))[level0]  # 2^-l: products exact
+            map_x0 = s_texels * level_scale
+            map_y0 = (t_texels - np.float32(2 * atlas.size)) * level_scale
             samples = []
             for scale, rows in ((np.float32(1.0), level_rows), (np.float32(0.5), level_rows + np.float32(2 * atlas.pad))):
                 # The next level (l + 1) beyond the last one is sampled with weight fraction = 0 only.
@@ -1110,6 +1111,7 @@ class SequenceJob:
     dynamic_scene: Any               # None or an object with quads_at(time, camera) -> list[Quad]
     out_dir: Path
     mount_vibration: dict[str, np.ndarray] | None = None  # per camera (N, 3, 3) over pose_trajectory's samples
+    vignetting: dict[str, np.ndarray] | None = None  # per camera with vignetting (H, W) factor (camera_effects.vignetting_factor)
 
 
 def _camera_pose_at(job: SequenceJob, camera: Camera):
@@ -1152,7 +1154,7 @@ def padded_camera(camera: Camera, margin: int) -> Camera:
 def render_frame_images(renderer: Renderer, job: SequenceJob, frame: int) -> dict[str, np.ndarray]:
     """uint8 images of every rig camera at one frame of a :class:`SequenceJob` (``camera_effects.form_image``
     with the camera's capture time, settings and metered exposure, then the render options' effects)."""
-    from ampc_vo.sim.camera_effects import form_image, vignetting_factor
+    from ampc_vo.sim.camera_effects import form_image
 
     options = renderer.options
     timestamp = float(job.trajectory.timestamps[frame])
@@ -1166,7 +1168,7 @@ def render_frame_images(renderer: Renderer, job: SequenceJob, frame: int) -> dic
             radiance, depth = renderer.radiance_and_depth(padded, T_world_camera, _extra_quads(renderer, job, camera, time))
             return radiance, depth, renderer.rays_of(padded).rays_planes
 
-        vignetting = vignetting_factor(renderer.rays_of(camera).rays_planes[2], settings.vignetting) if settings.vignetting > 0 else None
+        vignetting = (job.vignetting or {}).get(camera.name)
         rng = np.random.default_rng([options.seed, frame, camera_index, 13])
         amplification = float(job.amplification[camera.name][frame]) if job.amplification else 1.0
         image, _ = form_image(camera, render_with_depth, _camera_pose_at(job, camera), capture, settings, amplification, rng, vignetting)
@@ -1248,7 +1250,9 @@ def sequence_job(renderer: Renderer, rig: Rig, trajectory: Any, out_dir: str | P
                  camera_settings: Any = None, pose_trajectory: Any = None, dynamic_scene: Any = None,
                  mount_vibration: dict[str, np.ndarray] | None = None) -> SequenceJob:
     """Everything the frames of a sequence need (arguments as :func:`render_sequence`), with the
-    auto exposure metered over the whole sequence (:func:`metered_amplification`)."""
+    auto exposure metered over the whole sequence (:func:`metered_amplification`) and each
+    camera's vignetting factor (computed once)."""
+    from ampc_vo.sim.camera_effects import vignetting_factor
     from ampc_vo.sim.camera_settings import CameraSettingsTable, settings_for
 
     options = renderer.options
@@ -1257,9 +1261,11 @@ def sequence_job(renderer: Renderer, rig: Rig, trajectory: Any, out_dir: str | P
         settings = [dataclasses.replace(item, exposure_s=options.exposure_time_s, motion_blur_samples=options.motion_blur_samples)
                     if item.exposure_s == 0 else item for item in settings]
     frame_times = np.asarray(trajectory.timestamps, float)
+    vignetting = {camera.name: vignetting_factor(renderer.rays_of(camera).rays_planes[2], item.vignetting)
+                  for camera, item in zip(rig.cameras, settings) if item.vignetting > 0}
     job = SequenceJob(rig, trajectory, trajectory if pose_trajectory is None else pose_trajectory,
                       {camera.name: np.asarray((capture_times or {}).get(camera.name, frame_times), float) for camera in rig.cameras},
-                      tuple(settings), {}, dynamic_scene, Path(out_dir), mount_vibration)
+                      tuple(settings), {}, dynamic_scene, Path(out_dir), mount_vibration, vignetting)
     return dataclasses.replace(job, amplification=metered_amplification(renderer, job))
 
 
