@@ -169,6 +169,7 @@ def form_image(camera: Camera, render_with_depth: Callable[[np.ndarray, float, i
         return expose(radiance, amplification, settings, rng, vignetting), ImageFormation(middle, readout, 1, exposure_s, amplification, 0.0)
     margin = WARP_MARGIN_PX
     radiance, depth, rays = render_with_depth(T_middle, middle, margin)
+    radiance = radiance.astype(np.float32, copy=False)  # cv2.remap interpolates float64 at 1/32 px steps, float32 exactly
     height, width = camera.height, camera.width
     velocity, omega = camera_velocity(pose_at, middle)
     # Exact motion field on a grid of pixels: rolling-shutter target and image velocity.

@@ -996,7 +996,7 @@ class Renderer:
                 level += np.float32(options.mip_bias)
             np.clip(level, 0.0, atlas.num_levels - 1.0, out=level)
             level0 = level.astype(np.int32)
-            fraction = level - level0
+            fraction = level - level0.astype(np.float32)  # float32 (an int32 operand would make it float64)
             # Wrap once in level-0 texels: the wrapped coordinate of level l is that times 2^-l.
             # Texture rows grow downwards while b grows along axis_v (up on walls): flip t.
             size = np.float32(atlas.size)
