@@ -573,8 +573,7 @@ def relief_hits(bumps: Sequence[Any], camera_position: np.ndarray, rays_world: n
         return None
     approach = (plane_normal[:, 0] * rays_world[:, 0] + plane_normal[:, 1] * rays_world[:, 1] + plane_normal[:, 2] * rays_world[:, 2]) / plane_normal[:, 2]
     usable = (approach < -_RELIEF_MIN_APPROACH) & (depth < _RELIEF_RANGE_M)
-    heights = np.array([bump.height for bump in bumps])
-    high, low = float(np.sum(np.maximum(heights, 0.0))), float(np.sum(np.minimum(heights, 0.0)))
+    high, low = _relief_heights(bumps)
     safe = np.where(usable, approach, -1.0)
     t_start, t_stop = depth + high / safe, depth + low / safe
     start = camera_position[:2] + t_start[:, None] * rays_world[:, :2]
@@ -582,7 +581,7 @@ def relief_hits(bumps: Sequence[Any], camera_position: np.ndarray, rays_world: n
     near = np.zeros(len(pixels), bool)
     segment_length = np.sqrt(segment[:, 0] ** 2 + segment[:, 1] ** 2)
     for bump in bumps:  # distance of the bump's centre from the bracket's xy segment
-        reach = 0.5 * math.hypot(bump.length, bump.width) + 1e-3
+        reach = _bump_reach(bump)
         relative = np.asarray(bump.center) - start
         # Cheap bound first (the segment lies within its length of its start), exact test after.
         maybe = np.flatnonzero(relative[:, 0] ** 2 + relative[:, 1] ** 2 <= (reach + segment_length) ** 2)
@@ -628,6 +627,63 @@ def relief_hits(bumps: Sequence[Any], camera_position: np.ndarray, rays_world: n
     if low < 0.0:
         shade *= 1.0 - _POTHOLE_DARKENING * np.clip(relief_height(bumps, xy) / low, 0.0, 1.0)
     return ReliefHits(pixels[chosen], t.astype(np.float32), shade.astype(np.float32))
+
+
+def _bump_reach(bump: Any) -> float:
+    """Radius (m) of the disc around a bump's centre that holds it (its half diagonal, 1 mm more)."""
+    return 0.5 * math.hypot(bump.length, bump.width) + 1e-3
+
+
+def _relief_heights(bumps: Sequence[Any]) -> tuple[float, float]:
+    """``(highest, lowest)`` the summed relief can reach above its plane (m): the sums of the bumps'
+    positive and of their negative heights."""
+    heights = np.array([bump.height for bump in bumps])
+    return float(np.sum(np.maximum(heights, 0.0))), float(np.sum(np.minimum(heights, 0.0)))
+
+
+# corner k of a box is (x_lo or x_hi, y_lo or y_hi, z_lo or z_hi) by its bits 0, 1, 2; edges join corners one bit apart
+_BOX_CORNER_BITS = (np.arange(8)[:, None] >> np.arange(3)) & 1
+_BOX_EDGES = np.array([(k, k | bit) for k in range(8) for bit in (1, 2, 4) if not k & bit])
+
+
+def relief_footprint(bumps: Sequence[Any], quads: PreparedQuads, camera: Camera, T_world_camera: np.ndarray) -> np.ndarray | None:
+    """Pixels (H, W) bool whose rays can meet the relief in :func:`relief_hits`, or None (every
+    pixel) for cameras other than an undistorted pinhole.
+
+    A pixel's relief bracket lies within ``[lowest, highest]`` (:func:`_relief_heights`) vertically
+    above the plane of the horizontal quad it sees (within ``_RELIEF_RANGE_M``), and it matters only
+    over a bump's disc: so inside the box of the disc's square from the lowest of those planes over
+    it (plus ``lowest``) to the highest (plus ``highest``). The box, clipped at a near plane, projects
+    into the hull of its projected vertices; the pixels are their bounding rectangle, 1 px wider."""
+    if camera.model != "pinhole" or np.any(camera.distortion):
+        return None
+    R, position = np.asarray(T_world_camera[:3, :3], float), np.asarray(T_world_camera[:3, 3], float)
+    footprint = np.zeros((camera.height, camera.width), bool)
+    reachable = quads.horizontal & (np.linalg.norm(quads.centre - position, axis=1) - quads.radius < _RELIEF_RANGE_M)
+    if not reachable.any():
+        return footprint
+    normal, origin = quads.normal[reachable], quads.origin[reachable]
+    highest, lowest = _relief_heights(bumps)
+    tilt = (np.abs(normal[:, 0]) + np.abs(normal[:, 1])) / np.abs(normal[:, 2])  # plane height change per m (max over a square)
+    for bump in bumps:
+        reach, centre = _bump_reach(bump), np.asarray(bump.center, float)
+        plane_z = origin[:, 2] - (normal[:, 0] * (centre[0] - origin[:, 0]) + normal[:, 1] * (centre[1] - origin[:, 1])) / normal[:, 2]
+        z_range = (float(np.min(plane_z - reach * tilt)) + lowest, float(np.max(plane_z + reach * tilt)) + highest)
+        corners = np.column_stack([centre[0] + reach * (2 * _BOX_CORNER_BITS[:, 0] - 1), centre[1] + reach * (2 * _BOX_CORNER_BITS[:, 1] - 1),
+                                   np.where(_BOX_CORNER_BITS[:, 2] == 1, z_range[1], z_range[0])])
+        points = (corners - position) @ R                                       # camera frame
+        first, second = points[_BOX_EDGES[:, 0]], points[_BOX_EDGES[:, 1]]
+        crossing = (first[:, 2] >= _NEAR_PLANE_M) != (second[:, 2] >= _NEAR_PLANE_M)
+        fraction = (_NEAR_PLANE_M - first[crossing, 2]) / (second[crossing, 2] - first[crossing, 2])
+        vertices = np.concatenate([points[points[:, 2] >= _NEAR_PLANE_M], first[crossing] + fraction[:, None] * (second[crossing] - first[crossing])])
+        if len(vertices) == 0:
+            continue                                                            # behind the camera
+        u = np.clip(camera.fx * vertices[:, 0] / vertices[:, 2] + camera.cx, -1.0, camera.width)
+        v = np.clip(camera.fy * vertices[:, 1] / vertices[:, 2] + camera.cy, -1.0, camera.height)
+        columns = max(int(np.floor(u.min())) - 1, 0), min(int(np.ceil(u.max())) + 2, camera.width)
+        rows = max(int(np.floor(v.min())) - 1, 0), min(int(np.ceil(v.max())) + 2, camera.height)
+        footprint[rows[0]:rows[1], columns[0]:columns[1]] = True
+    return footprint
 
 
 # ---------------------------------------------------------------------- the renderer
@@ -884,7 +940,7 @@ class Renderer:
         shape = (camera.height, camera.width)
         depth_image = depth.ravel()[order].reshape(shape)
         id_image = quad_id.ravel()[order].reshape(shape)
-        relief = self._relief_in_view(rays, R_world_camera, camera_position, depth_image, id_image, quads)
+        relief = self._relief_in_view(camera, np.asarray(T_world_camera, float), depth_image, id_image, quads)
         shade = None
         if relief is not None:
             depth_image.ravel()[relief.pixels] = relief.depth
@@ -914,20 +970,25 @@ class Renderer:
         cos_incidence = np.abs(d_n)
         return VisibilityBuffer(depth_image, id_image, coord_a, coord_b, texture_s, texture_t, cos_incidence, quads, shade)
 
-    def _relief_in_view(self, rays: CameraRays, R_world_camera: np.ndarray, camera_position: np.ndarray, depth_image: np.ndarray,
+    def _relief_in_view(self, camera: Camera, T_world_camera: np.ndarray, depth_image: np.ndarray,
                         id_image: np.ndarray, quads: PreparedQuads) -> ReliefHits | None:
         """:func:`relief_hits` for the scene's bumps within reach of the camera, on the pixels that
-        see a horizontal quad."""
+        see a horizontal quad within the bumps' footprint (:func:`relief_footprint`)."""
+        R_world_camera, camera_position = T_world_camera[:3, :3], T_world_camera[:3, 3]
         bumps = [bump for bump in self.relief
                  if np.hypot(*(np.asarray(bump.center) - camera_position[:2])) < _RELIEF_RANGE_M + max(bump.length, bump.width)]
         if not bumps:
             return None
+        footprint = relief_footprint(bumps, quads, camera, T_world_camera)
+        if footprint is not None and not footprint.any():
+            return None
         flat_ids = id_image.ravel()
-        pixels = np.flatnonzero((flat_ids >= 0) & (depth_image.ravel() < _RELIEF_RANGE_M))
+        seen = (id_image >= 0) & (depth_image < _RELIEF_RANGE_M)
+        pixels = np.flatnonzero(seen if footprint is None else seen & footprint)
         pixels = pixels[quads.horizontal[flat_ids[pixels]]]
         if pixels.size == 0:
             return None
-        rays_world = (R_world_camera @ rays.rays_planes.reshape(3, -1)[:, pixels].astype(np.float64)).T
+        rays_world = (R_world_camera @ self.rays_of(camera).rays_planes.reshape(3, -1)[:, pixels].astype(np.float64)).T
         return relief_hits(bumps, camera_position, rays_world, depth_image.ravel()[pixels].astype(np.float64),
                            quads.normal[flat_ids[pixels]], pixels, self.options.shadow_darkness)
 

@@ -114,3 +114,38 @@ def test_rolling_shutter_warp_is_exact_to_a_hundredth_of_a_pixel(default_rig, dt
     # unshifted) and rows up to the motion field's last grid row (beyond, its shift is held).
     rows_on_grid, inside = slice(0, (camera.height - 1) // 4 * 4 + 1), slice(12, camera.width - 12)
     np.testing.assert_allclose(seen_column[rows_on_grid, inside], source_column[rows_on_grid, inside], atol=0.01)
+
+
+def test_relief_footprint_keeps_every_pixel_of_the_whole_image_relief_test(default_rig, atlas, monkeypatch):
+    """Restricting the relief test to the bumps' image footprint changes no pixel: depth and image
+    equal those of testing every pixel, for cameras before, over, beside and past a speed bump, a
+    pothole and a tall hump (seen from low, its top above the footprint of its base), on a flat road
+    and on one of two quads, one slightly tilted."""
+    from ampc_vo.sim import render as render_module
+    from ampc_vo.sim.road import Bump
+
+    tilted = np.array([0.0, -0.03, 1.0]) / np.linalg.norm([0.0, -0.03, 1.0])
+    flat = (Quad(np.array([-20.0, -4.0, 0.0]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 70.0, 8.0, "road", "grass", 4.0),)
+    two = (Quad(np.array([-20.0, -4.0, 0.0]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 30.0, 8.0, "road", "grass", 4.0),
+           Quad(np.array([10.0, -4.0, 0.0]), np.array([1.0, 0, 0]), np.cross(tilted, [1.0, 0.0, 0.0]), 40.0, 8.0, "road", "grass", 4.0))
+    bumps = (Bump((6.0, 0.5), 0.0, 1.5, 5.0, 0.07), Bump((14.0, -1.5), 0.3, 0.9, 0.7, -0.06), Bump((32.0, 1.0), 0.0, 1.2, 1.2, 0.4))
+    camera = replace_camera(default_rig.camera("front"), width=200, height=150, fx=140.0, fy=140.0, cx=99.5, cy=74.5)
+    options = RenderOptions(shading=False, road_markings=False)
+    seen = 0
+    for roads in (flat, two):
+        renderer = Renderer(Scene(roads, bumps), atlas, options)
+        for x, z, heading, pitch in ((-15.0, 2.5, 0.0, 10.0), (2.0, 2.5, 0.2, 25.0), (5.0, 2.5, 0.0, 30.0), (6.0, 2.5, 0.0, 60.0),
+                                     (9.0, 2.5, np.pi, 30.0), (10.0, 2.5, 1.4, 20.0), (25.0, 2.5, np.pi - 0.2, 15.0),
+                                     (6.0, 2.5, 0.5 * np.pi, 5.0), (40.0, 2.5, np.pi, 5.0), (22.0, 0.6, 0.0, 0.0)):
+            R = rot_z(heading) @ np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]) @ rot_x(-np.radians(pitch))
+            T_world_camera = make_pose(R, np.array([x, 0.0, z]))
+            image, depth = renderer.radiance_and_depth(camera, T_world_camera)
+            with monkeypatch.context() as patch:
+                patch.setattr(render_module, "relief_footprint", lambda *args: None)
+                whole_image, whole_depth = renderer.radiance_and_depth(camera, T_world_camera)
+            plane_depth = Renderer(Scene(roads), atlas, options).radiance_and_depth(camera, T_world_camera)[1]
+            hit = np.isfinite(plane_depth)
+            seen += int(np.sum(np.abs(whole_depth[hit] - plane_depth[hit]) > 1e-4))
+            np.testing.assert_array_equal(depth, whole_depth)
+            np.testing.assert_array_equal(image, whole_image)
+    assert seen > 5000  # the bumps are seen
