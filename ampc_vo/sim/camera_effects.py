@@ -196,18 +196,17 @@ def form_image(camera: Camera, render_with_depth: Callable[[np.ndarray, float, i
     columns, rows = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
     coarse_u, coarse_v = columns / np.float32(_GRID_STEP), rows / np.float32(_GRID_STEP)
 
-    def upsample(u_values: np.ndarray, v_values: np.ndarray) -> np.ndarray:  # bilinear between grid points (pixel k * step)
-        field = np.stack([u_values.reshape(shape), v_values.reshape(shape)], axis=-1).astype(np.float32)
-        return cv2.remap(field, coarse_u, coarse_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-
-    shift = upsample(target[:, 0] - source[:, 0], target[:, 1] - source[:, 1])        # (H, W, 2)
-    flow = upsample(image_velocity[:, 0], image_velocity[:, 1])
+    # Shift and image velocity as one 4-channel field (cv2.remap is faster on 4 channels than on 2),
+    # bilinear between the grid points (pixel k * step).
+    motion_field = np.stack([target[:, 0] - source[:, 0], target[:, 1] - source[:, 1], image_velocity[:, 0], image_velocity[:, 1]],
+                            axis=-1).reshape(*shape, 4).astype(np.float32)
+    fields = cv2.remap(motion_field, coarse_u, coarse_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)   # (H, W, 4)
     # Backward map: the source pixel p of each target pixel q solves p + shift(p) = q.
-    map_u, map_v = columns - shift[..., 0], rows - shift[..., 1]
+    map_u, map_v = columns - fields[..., 0], rows - fields[..., 1]
     for _ in range(2):
-        at = cv2.remap(shift, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        at = cv2.remap(fields, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         map_u, map_v = columns - at[..., 0], rows - at[..., 1]
-    velocity_at = cv2.remap(flow, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    velocity_at = cv2.remap(fields, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[..., 2:]
     blur_px = float(np.max(np.hypot(image_velocity[:, 0], image_velocity[:, 1]))) * exposure_s if len(image_velocity) else 0.0
     samples = int(np.clip(math.ceil(blur_px), 1, samples))  # about one sample per pixel of blur
     offsets = blur_offsets(samples, exposure_s)
