@@ -464,6 +464,16 @@ def _tiles_in_boxes(box: np.ndarray, tiles_x: int) -> tuple[np.ndarray, np.ndarr
     return owner, (box[owner, 2] + local // width) * tiles_x + box[owner, 0] + local % width
 
 
+def _tiles_to_image(values: np.ndarray, rays: CameraRays, shape: tuple[int, int]) -> np.ndarray:
+    """Tile-major per-pixel values (T, P) as an image (H, W): a transposed copy when the tiles cover
+    the image exactly, else a gather through ``rays.image_order``."""
+    height, width = shape
+    tile = math.isqrt(values.shape[1])
+    if height % tile or width % tile:
+        return values.ravel()[rays.image_order].reshape(shape)
+    return values.reshape(height // tile, width // tile, tile, tile).transpose(0, 2, 1, 3).reshape(shape)
+
+
 def coarsen_pieces(pieces: PreparedQuads, factor: int) -> tuple[PreparedQuads, np.ndarray]:
     """Blocks of up to ``factor`` x ``factor`` neighbouring pieces of the same parent merged into one
     piece each (exactly their union: same plane, texture map and shading), and each piece's block."""
@@ -936,10 +946,9 @@ class Renderer:
                     keep_nearer(tiles, t, np.int32(q), hit)
             test_batch()
             self.last_stats = {"candidates": int(candidates.size), "quads_tested": tested_quads, "ray_tests": tested_pixels}
-        order = rays.image_order
         shape = (camera.height, camera.width)
-        depth_image = depth.ravel()[order].reshape(shape)
-        id_image = quad_id.ravel()[order].reshape(shape)
+        depth_image = _tiles_to_image(depth, rays, shape)
+        id_image = _tiles_to_image(quad_id, rays, shape)
         relief = self._relief_in_view(camera, np.asarray(T_world_camera, float), depth_image, id_image, quads)
         shade = None
         if relief is not None:

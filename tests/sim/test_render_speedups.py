@@ -149,3 +149,15 @@ def test_relief_footprint_keeps_every_pixel_of_the_whole_image_relief_test(defau
             np.testing.assert_array_equal(depth, whole_depth)
             np.testing.assert_array_equal(image, whole_image)
     assert seen > 5000  # the bumps are seen
+
+
+@pytest.mark.parametrize("width, height, tile_size", [(640, 480, 16), (96, 64, 8), (100, 70, 16)])
+def test_tiles_to_image_is_the_gather_through_the_image_order(default_rig, width, height, tile_size):
+    """Tile-major buffers become images by a transposed copy where the tiles cover the image
+    exactly: the same as gathering every pixel through ``image_order`` (the general path)."""
+    from ampc_vo.sim.render import _tiles_to_image, camera_rays
+
+    camera = replace_camera(default_rig.camera("front"), width=width, height=height, cx=width / 2 - 0.5, cy=height / 2 - 0.5)
+    rays = camera_rays(camera, tile_size)
+    values = np.random.default_rng(3).random(rays.pixel_index.shape).astype(np.float32)
+    np.testing.assert_array_equal(_tiles_to_image(values, rays, (height, width)), values.ravel()[rays.image_order].reshape(height, width))
