@@ -270,6 +270,11 @@ def _times(vectors: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     return vectors[:, 0:1] * matrix[0] + vectors[:, 1:2] * matrix[1] + vectors[:, 2:3] * matrix[2]
 
 
+def _dot_rows(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Row-wise dot products (N,) of two (N, 3) arrays, as three products (the dtype of the inputs)."""
+    return first[:, 0] * second[:, 0] + first[:, 1] * second[:, 1] + first[:, 2] * second[:, 2]
+
+
 _NEAR_PLANE_M = 1e-3
 
 
@@ -453,6 +458,27 @@ _SUBPIXEL_FRACTION = 0.25  # quads below this share of a pixel's solid angle are
 _COARSE_FACTOR = 8  # pieces per side of a coarse block (level of detail beyond detail_distance_m)
 
 
+def _tiles_in_boxes(box: np.ndarray, tiles_x: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every tile of each non-empty box ``(first column, last column, first row, last row)`` (B, 4)
+    int of a grid ``tiles_x`` tiles wide, as pairs ``(box index, tile index)``: by box, then by tile."""
+    columns = box[:, 1] - box[:, 0] + 1
+    counts = columns * (box[:, 3] - box[:, 2] + 1)
+    owner = np.repeat(np.arange(len(box)), counts)
+    local = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+    width = columns[owner]
+    return owner, (box[owner, 2] + local // width) * tiles_x + box[owner, 0] + local % width
+
+
+def _tiles_to_image(values: np.ndarray, rays: CameraRays, shape: tuple[int, int]) -> np.ndarray:
+    """Tile-major per-pixel values (T, P) as an image (H, W): a transposed copy when the tiles cover
+    the image exactly, else a gather through ``rays.image_order``."""
+    height, width = shape
+    tile = math.isqrt(values.shape[1])
+    if height % tile or width % tile:
+        return values.ravel()[rays.image_order].reshape(shape)
+    return values.reshape(height // tile, width // tile, tile, tile).transpose(0, 2, 1, 3).reshape(shape)
+
+
 def coarsen_pieces(pieces: PreparedQuads, factor: int) -> tuple[PreparedQuads, np.ndarray]:
     """Blocks of up to ``factor`` x ``factor`` neighbouring pieces of the same parent merged into one
     piece each (exactly their union: same plane, texture map and shading), and each piece's block."""
@@ -562,8 +588,7 @@ def relief_hits(bumps: Sequence[Any], camera_position: np.ndarray, rays_world: n
         return None
     approach = (plane_normal[:, 0] * rays_world[:, 0] + plane_normal[:, 1] * rays_world[:, 1] + plane_normal[:, 2] * rays_world[:, 2]) / plane_normal[:, 2]
     usable = (approach < -_RELIEF_MIN_APPROACH) & (depth < _RELIEF_RANGE_M)
-    heights = np.array([bump.height for bump in bumps])
-    high, low = float(np.sum(np.maximum(heights, 0.0))), float(np.sum(np.minimum(heights, 0.0)))
+    high, low = _relief_heights(bumps)
     safe = np.where(usable, approach, -1.0)
     t_start, t_stop = depth + high / safe, depth + low / safe
     start = camera_position[:2] + t_start[:, None] * rays_world[:, :2]
@@ -571,7 +596,7 @@ def relief_hits(bumps: Sequence[Any], camera_position: np.ndarray, rays_world: n
     near = np.zeros(len(pixels), bool)
     segment_length = np.sqrt(segment[:, 0] ** 2 + segment[:, 1] ** 2)
     for bump in bumps:  # distance of the bump's centre from the bracket's xy segment
-        reach = 0.5 * math.hypot(bump.length, bump.width) + 1e-3
+        reach = _bump_reach(bump)
         relative = np.asarray(bump.center) - start
         # Cheap bound first (the segment lies within its length of its start), exact test after.
         maybe = np.flatnonzero(relative[:, 0] ** 2 + relative[:, 1] ** 2 <= (reach + segment_length) ** 2)
@@ -619,6 +644,63 @@ def relief_hits(bumps: Sequence[Any], camera_position: np.ndarray, rays_world: n
     return ReliefHits(pixels[chosen], t.astype(np.float32), shade.astype(np.float32))
 
 
+def _bump_reach(bump: Any) -> float:
+    """Radius (m) of the disc around a bump's centre that holds it (its half diagonal, 1 mm more)."""
+    return 0.5 * math.hypot(bump.length, bump.width) + 1e-3
+
+
+def _relief_heights(bumps: Sequence[Any]) -> tuple[float, float]:
+    """``(highest, lowest)`` the summed relief can reach above its plane (m): the sums of the bumps'
+    positive and of their negative heights."""
+    heights = np.array([bump.height for bump in bumps])
+    return float(np.sum(np.maximum(heights, 0.0))), float(np.sum(np.minimum(heights, 0.0)))
+
+
+# corner k of a box is (x_lo or x_hi, y_lo or y_hi, z_lo or z_hi) by its bits 0, 1, 2; edges join corners one bit apart
+_BOX_CORNER_BITS = (np.arange(8)[:, None] >> np.arange(3)) & 1
+_BOX_EDGES = np.array([(k, k | bit) for k in range(8) for bit in (1, 2, 4) if not k & bit])
+
+
+def relief_footprint(bumps: Sequence[Any], quads: PreparedQuads, camera: Camera, T_world_camera: np.ndarray) -> np.ndarray | None:
+    """Pixels (H, W) bool whose rays can meet the relief in :func:`relief_hits`, or None (every
+    pixel) for cameras other than an undistorted pinhole.
+
+    A pixel's relief bracket lies within ``[lowest, highest]`` (:func:`_relief_heights`) vertically
+    above the plane of the horizontal quad it sees (within ``_RELIEF_RANGE_M``), and it matters only
+    over a bump's disc: so inside the box of the disc's square from the lowest of those planes over
+    it (plus ``lowest``) to the highest (plus ``highest``). The box, clipped at a near plane, projects
+    into the hull of its projected vertices; the pixels are their bounding rectangle, 1 px wider."""
+    if camera.model != "pinhole" or np.any(camera.distortion):
+        return None
+    R, position = np.asarray(T_world_camera[:3, :3], float), np.asarray(T_world_camera[:3, 3], float)
+    footprint = np.zeros((camera.height, camera.width), bool)
+    reachable = quads.horizontal & (np.linalg.norm(quads.centre - position, axis=1) - quads.radius < _RELIEF_RANGE_M)
+    if not reachable.any():
+        return footprint
+    normal, origin = quads.normal[reachable], quads.origin[reachable]
+    highest, lowest = _relief_heights(bumps)
+    tilt = (np.abs(normal[:, 0]) + np.abs(normal[:, 1])) / np.abs(normal[:, 2])  # plane height change per m (max over a square)
+    for bump in bumps:
+        reach, centre = _bump_reach(bump), np.asarray(bump.center, float)
+        plane_z = origin[:, 2] - (normal[:, 0] * (centre[0] - origin[:, 0]) + normal[:, 1] * (centre[1] - origin[:, 1])) / normal[:, 2]
+        z_range = (float(np.min(plane_z - reach * tilt)) + lowest, float(np.max(plane_z + reach * tilt)) + highest)
+        corners = np.column_stack([centre[0] + reach * (2 * _BOX_CORNER_BITS[:, 0] - 1), centre[1] + reach * (2 * _BOX_CORNER_BITS[:, 1] - 1),
+                                   np.where(_BOX_CORNER_BITS[:, 2] == 1, z_range[1], z_range[0])])
+        points = (corners - position) @ R                                       # camera frame
+        first, second = points[_BOX_EDGES[:, 0]], points[_BOX_EDGES[:, 1]]
+        crossing = (first[:, 2] >= _NEAR_PLANE_M) != (second[:, 2] >= _NEAR_PLANE_M)
+        fraction = (_NEAR_PLANE_M - first[crossing, 2]) / (second[crossing, 2] - first[crossing, 2])
+        vertices = np.concatenate([points[points[:, 2] >= _NEAR_PLANE_M], first[crossing] + fraction[:, None] * (second[crossing] - first[crossing])])
+        if len(vertices) == 0:
+            continue                                                            # behind the camera
+        u = np.clip(camera.fx * vertices[:, 0] / vertices[:, 2] + camera.cx, -1.0, camera.width)
+        v = np.clip(camera.fy * vertices[:, 1] / vertices[:, 2] + camera.cy, -1.0, camera.height)
+        columns = max(int(np.floor(u.min())) - 1, 0), min(int(np.ceil(u.max())) + 2, camera.width)
+        rows = max(int(np.floor(v.min())) - 1, 0), min(int(np.ceil(v.max())) + 2, camera.height)
+        footprint[rows[0]:rows[1], columns[0]:columns[1]] = True
+    return footprint
+
+
 # ---------------------------------------------------------------------- the renderer
 class Renderer:
     """Renders one scene for any camera and pose; caches per-camera rays and the texture atlas."""
@@ -658,12 +740,15 @@ class Renderer:
     # ------------------------------------------------------------------ visibility
     def _candidate_tiles(self, camera: Camera, rays: CameraRays, quads: PreparedQuads,
                          centre: np.ndarray, origin_c: np.ndarray, normal_c: np.ndarray,
-                         outline_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Quads that may be visible and, per quad, the tiles its rays may hit (conservative).
+                         outline_c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Quads that may be visible and, per quad, the tiles its rays may hit (conservative):
+        ``(candidates (C,), tiles (N,), starts (C + 1,))``, the tiles of candidate ``k`` being
+        ``tiles[starts[k]:starts[k + 1]]`` in increasing order.
 
         Three tests, all conservative: for quads entirely in front of the lens, the image bounding
         box of their projected outline; the quad's bounding sphere against each tile's ray cone;
         and the quad's plane must be reachable from the tile (some ray points towards its side).
+        The last two are evaluated on the tiles of the bounding box only (quad-tile pairs).
         """
         distance = np.linalg.norm(centre, axis=1)
         inside = distance <= quads.radius * 1.0001
@@ -677,9 +762,8 @@ class Renderer:
         pixel_solid_angle = rays.smallest_pixel_angle**2
         in_view &= inside | (quads.width * quads.height >= _SUBPIXEL_FRACTION * pixel_solid_angle * safe_distance**2)
         candidates = np.flatnonzero(in_view)
-        num_tiles = len(rays.tile_axis)
         if candidates.size == 0:
-            return candidates, np.zeros((0, num_tiles), bool)
+            return candidates, np.zeros(0, np.int64), np.zeros(1, np.int64)
         # Tile-grid bounding box of the projected outline when all of it is safely in front.
         outline = outline_c[candidates]  # (C, S, 3)
         flat = outline.reshape(-1, 3)
@@ -738,22 +822,31 @@ class Renderer:
         nonempty = ((box[:, 0] <= box[:, 1]) & (box[:, 2] <= box[:, 3])) | wide
         candidates, box, wide = candidates[nonempty], box[nonempty], wide[nonempty]
         if candidates.size == 0:
-            return candidates, np.zeros((0, num_tiles), bool)
-        overlap = ((rays.tile_col[None, :] >= box[:, 0:1]) & (rays.tile_col[None, :] <= box[:, 1:2])
-                   & (rays.tile_row[None, :] >= box[:, 2:3]) & (rays.tile_row[None, :] <= box[:, 3:4]))
+            return candidates, np.zeros(0, np.int64), np.zeros(1, np.int64)
+        # Quad-tile pairs of the boxes (quads seeing behind the lens: every tile, kept if in the box or beyond 90 deg).
+        pair_box = box.copy()
+        pair_box[wide] = (0, tiles_x - 1, 0, tiles_y - 1)
+        owner, tile = _tiles_in_boxes(pair_box.astype(np.int64), tiles_x)
         if wide.any():
-            overlap[wide] |= rays.tile_beyond_90[None, :]
+            col, row = tile % tiles_x, tile // tiles_x
+            in_box = (col >= box[owner, 0]) & (col <= box[owner, 1]) & (row >= box[owner, 2]) & (row <= box[owner, 3])
+            chosen = ~wide[owner] | in_box | rays.tile_beyond_90[tile]
+            owner, tile = owner[chosen], tile[chosen]
+        tile_axis = rays.tile_axis_f32[tile]
         # Sphere vs tile cone: angle(axis, centre) <= half_t + radius_q, as cos(angle) >= cos(sum).
-        direction = (centre[candidates] / safe_distance[candidates, None]).astype(np.float32)
-        cos_angle = _times(direction, rays.tile_axis_f32.T)
-        total = rays.tile_half_angle_f32[None, :] + angular_radius[candidates, None].astype(np.float32)
-        overlap &= (cos_angle >= np.cos(np.minimum(total, np.float32(np.pi)))) | inside[candidates, None]
+        direction = (centre[candidates] / safe_distance[candidates, None]).astype(np.float32)[owner]
+        cos_angle = _dot_rows(direction, tile_axis)
+        total = rays.tile_half_angle_f32[tile] + angular_radius[candidates].astype(np.float32)[owner]
+        keep = (cos_angle >= np.cos(np.minimum(total, np.float32(np.pi)))) | inside[candidates][owner]
         # Plane side: need a ray d of the tile with sign(d.n) == sign(o.n).
         side = np.sign(np.einsum("qk,qk->q", origin_c[candidates], normal_c[candidates]))
-        toward = _times((side[:, None] * normal_c[candidates]).astype(np.float32), rays.tile_axis_f32.T)
-        overlap &= toward > -rays.tile_sin_half[None, :]
-        keep = overlap.any(axis=1)
-        return candidates[keep], overlap[keep]
+        facing = (side[:, None] * normal_c[candidates]).astype(np.float32)[owner]
+        toward = _dot_rows(facing, tile_axis)
+        keep &= toward > -rays.tile_sin_half[tile]
+        owner, tile = owner[keep], tile[keep]
+        counts = np.bincount(owner, minlength=candidates.size)
+        seen = counts > 0
+        return candidates[seen], tile, np.concatenate([[0], np.cumsum(counts[seen])])
 
     def depth_pass(self, camera: Camera, T_world_camera: np.ndarray, extra: PreparedQuads | None = None) -> VisibilityBuffer:
         """Nearest hit per pixel (ray casting with a depth test), as a :class:`VisibilityBuffer`."""
@@ -779,7 +872,8 @@ class Renderer:
             o = origin_c[:, None, :]
             outline = np.concatenate([o + along_u, o + w * u_c[:, None, :] + along_v,
                                       o + h * v_c[:, None, :] + w * u_c[:, None, :] - along_u, o + h * v_c[:, None, :] - along_v], axis=1)
-            candidates, overlap = self._candidate_tiles(camera, rays, quads, centre, origin_c, n_c, outline)
+            candidates, candidate_tiles, tile_starts = self._candidate_tiles(camera, rays, quads, centre, origin_c, n_c, outline)
+            tile_starts = tile_starts.tolist()
             nearest = np.linalg.norm(centre[candidates], axis=1) - quads.radius[candidates]
             order = np.argsort(nearest)
             axes_c = np.stack([n_c, u_c, v_c], axis=2).astype(np.float32)  # (Q, 3, 3): columns n, u, v
@@ -831,7 +925,7 @@ class Renderer:
 
             for k in order:
                 q = int(candidates[k])
-                tiles = np.flatnonzero(overlap[k])
+                tiles = candidate_tiles[tile_starts[k]:tile_starts[k + 1]]
                 tiles = tiles[tile_far[tiles] > nearest[k]]
                 if tiles.size == 0:
                     continue
@@ -857,11 +951,10 @@ class Renderer:
                     keep_nearer(tiles, t, np.int32(q), hit)
             test_batch()
             self.last_stats = {"candidates": int(candidates.size), "quads_tested": tested_quads, "ray_tests": tested_pixels}
-        order = rays.image_order
         shape = (camera.height, camera.width)
-        depth_image = depth.ravel()[order].reshape(shape)
-        id_image = quad_id.ravel()[order].reshape(shape)
-        relief = self._relief_in_view(rays, R_world_camera, camera_position, depth_image, id_image, quads)
+        depth_image = _tiles_to_image(depth, rays, shape)
+        id_image = _tiles_to_image(quad_id, rays, shape)
+        relief = self._relief_in_view(camera, np.asarray(T_world_camera, float), depth_image, id_image, quads)
         shade = None
         if relief is not None:
             depth_image.ravel()[relief.pixels] = relief.depth
@@ -891,20 +984,25 @@ class Renderer:
         cos_incidence = np.abs(d_n)
         return VisibilityBuffer(depth_image, id_image, coord_a, coord_b, texture_s, texture_t, cos_incidence, quads, shade)
 
-    def _relief_in_view(self, rays: CameraRays, R_world_camera: np.ndarray, camera_position: np.ndarray, depth_image: np.ndarray,
+    def _relief_in_view(self, camera: Camera, T_world_camera: np.ndarray, depth_image: np.ndarray,
                         id_image: np.ndarray, quads: PreparedQuads) -> ReliefHits | None:
         """:func:`relief_hits` for the scene's bumps within reach of the camera, on the pixels that
-        see a horizontal quad."""
+        see a horizontal quad within the bumps' footprint (:func:`relief_footprint`)."""
+        R_world_camera, camera_position = T_world_camera[:3, :3], T_world_camera[:3, 3]
         bumps = [bump for bump in self.relief
                  if np.hypot(*(np.asarray(bump.center) - camera_position[:2])) < _RELIEF_RANGE_M + max(bump.length, bump.width)]
         if not bumps:
             return None
+        footprint = relief_footprint(bumps, quads, camera, T_world_camera)
+        if footprint is not None and not footprint.any():
+            return None
         flat_ids = id_image.ravel()
-        pixels = np.flatnonzero((flat_ids >= 0) & (depth_image.ravel() < _RELIEF_RANGE_M))
+        seen = (id_image >= 0) & (depth_image < _RELIEF_RANGE_M)
+        pixels = np.flatnonzero(seen if footprint is None else seen & footprint)
         pixels = pixels[quads.horizontal[flat_ids[pixels]]]
         if pixels.size == 0:
             return None
-        rays_world = (R_world_camera @ rays.rays_planes.reshape(3, -1)[:, pixels].astype(np.float64)).T
+        rays_world = (R_world_camera @ self.rays_of(camera).rays_planes.reshape(3, -1)[:, pixels].astype(np.float64)).T
         return relief_hits(bumps, camera_position, rays_world, depth_image.ravel()[pixels].astype(np.float64),
                            quads.normal[flat_ids[pixels]], pixels, self.options.shadow_darkness)
 
@@ -973,7 +1071,7 @@ class Renderer:
                 level += np.float32(options.mip_bias)
             np.clip(level, 0.0, atlas.num_levels - 1.0, out=level)
             level0 = level.astype(np.int32)
-            fraction = level - level0
+            fraction = level - level0.astype(np.float32)  # float32 (an int32 operand would make it float64)
             # Wrap once in level-0 texels: the wrapped coordinate of level l is that times 2^-l.
             # Texture rows grow downwards while b grows along axis_v (up on walls): flip t.
             size = np.float32(atlas.size)
@@ -985,8 +1083,9 @@ class Renderer:
             # Level l starts at row 2 S (1 - 2^-l) + 2 pad l of the atlas (build_atlas stacks levels),
             # so map_y = 2 S + pad - 0.5 + 2 pad l + (t - 2 S) 2^-l: no per-pixel table lookups.
             level_rows = (level0 * (2 * atlas.pad) + (2 * atlas.size)).astype(np.float32) + np.float32(atlas.pad - 0.5)
-            map_x0 = np.ldexp(s_texels, -level0).astype(np.float32, copy=False)
-            map_y0 = np.ldexp(t_texels - np.float32(2 * atlas.size), -level0).astype(np.float32, copy=False)
+            level_scale = np.ldexp(np.float32(1.0), -np.arange(atlas.num_levels, dtype=np.int32))[level0]  # 2^-l: products exact
+            map_x0 = s_texels * level_scale
+            map_y0 = (t_texels - np.float32(2 * atlas.size)) * level_scale
             samples = []
             for scale, rows in ((np.float32(1.0), level_rows), (np.float32(0.5), level_rows + np.float32(2 * atlas.pad))):
                 # The next level (l + 1) beyond the last one is sampled with weight fraction = 0 only.
@@ -1087,6 +1186,7 @@ class SequenceJob:
     dynamic_scene: Any               # None or an object with quads_at(time, camera) -> list[Quad]
     out_dir: Path
     mount_vibration: dict[str, np.ndarray] | None = None  # per camera (N, 3, 3) over pose_trajectory's samples
+    vignetting: dict[str, np.ndarray] | None = None  # per camera with vignetting (H, W) factor (camera_effects.vignetting_factor)
 
 
 def _camera_pose_at(job: SequenceJob, camera: Camera):
@@ -1129,7 +1229,7 @@ def padded_camera(camera: Camera, margin: int) -> Camera:
 def render_frame_images(renderer: Renderer, job: SequenceJob, frame: int) -> dict[str, np.ndarray]:
     """uint8 images of every rig camera at one frame of a :class:`SequenceJob` (``camera_effects.form_image``
     with the camera's capture time, settings and metered exposure, then the render options' effects)."""
-    from ampc_vo.sim.camera_effects import form_image, vignetting_factor
+    from ampc_vo.sim.camera_effects import form_image
 
     options = renderer.options
     timestamp = float(job.trajectory.timestamps[frame])
@@ -1143,7 +1243,7 @@ def render_frame_images(renderer: Renderer, job: SequenceJob, frame: int) -> dic
             radiance, depth = renderer.radiance_and_depth(padded, T_world_camera, _extra_quads(renderer, job, camera, time))
             return radiance, depth, renderer.rays_of(padded).rays_planes
 
-        vignetting = vignetting_factor(renderer.rays_of(camera).rays_planes[2], settings.vignetting) if settings.vignetting > 0 else None
+        vignetting = (job.vignetting or {}).get(camera.name)
         rng = np.random.default_rng([options.seed, frame, camera_index, 13])
         amplification = float(job.amplification[camera.name][frame]) if job.amplification else 1.0
         image, _ = form_image(camera, render_with_depth, _camera_pose_at(job, camera), capture, settings, amplification, rng, vignetting)
@@ -1225,7 +1325,9 @@ def sequence_job(renderer: Renderer, rig: Rig, trajectory: Any, out_dir: str | P
                  camera_settings: Any = None, pose_trajectory: Any = None, dynamic_scene: Any = None,
                  mount_vibration: dict[str, np.ndarray] | None = None) -> SequenceJob:
     """Everything the frames of a sequence need (arguments as :func:`render_sequence`), with the
-    auto exposure metered over the whole sequence (:func:`metered_amplification`)."""
+    auto exposure metered over the whole sequence (:func:`metered_amplification`) and each
+    camera's vignetting factor (computed once)."""
+    from ampc_vo.sim.camera_effects import vignetting_factor
     from ampc_vo.sim.camera_settings import CameraSettingsTable, settings_for
 
     options = renderer.options
@@ -1234,9 +1336,11 @@ def sequence_job(renderer: Renderer, rig: Rig, trajectory: Any, out_dir: str | P
         settings = [dataclasses.replace(item, exposure_s=options.exposure_time_s, motion_blur_samples=options.motion_blur_samples)
                     if item.exposure_s == 0 else item for item in settings]
     frame_times = np.asarray(trajectory.timestamps, float)
+    vignetting = {camera.name: vignetting_factor(renderer.rays_of(camera).rays_planes[2], item.vignetting)
+                  for camera, item in zip(rig.cameras, settings) if item.vignetting > 0}
     job = SequenceJob(rig, trajectory, trajectory if pose_trajectory is None else pose_trajectory,
                       {camera.name: np.asarray((capture_times or {}).get(camera.name, frame_times), float) for camera in rig.cameras},
-                      tuple(settings), {}, dynamic_scene, Path(out_dir), mount_vibration)
+                      tuple(settings), {}, dynamic_scene, Path(out_dir), mount_vibration, vignetting)
     return dataclasses.replace(job, amplification=metered_amplification(renderer, job))
 
 
