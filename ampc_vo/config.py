@@ -175,9 +175,14 @@ class RansacConfig:
     # error of the Ackermann chord direction (curvature transitions, tyre slip; DESIGN 2): at small
     # yaw changes the 2-point chord hinges on it; 0 trusts the model exactly
     model_direction_sigma_deg: float = 0.05
+    # a tractor motion must explain at least this share of the shared tracks: a planar motion
+    # that fits a few (a speed bump's pitch, traffic, the trailer's box) is no measurement
+    min_inlier_fraction: float = 0.25
 
     def validate(self, where: str) -> None:
         _positive(self.threshold_px, where + "threshold_px")
+        if not 0.0 <= self.min_inlier_fraction < 1.0:
+            raise _error(where + "min_inlier_fraction", f"must be in [0, 1), got {self.min_inlier_fraction}")
         _at_least(self.model_direction_sigma_deg, 0.0, where + "model_direction_sigma_deg")
         _positive(self.max_deceleration_mps2, where + "max_deceleration_mps2")
         if not 0.0 < self.confidence < 1.0:

@@ -213,3 +213,14 @@ def triangulate_midpoint(bearings_first: np.ndarray, bearings_second: np.ndarray
     return points, depth
 
 
+def rays_hit_box(origin: ArrayF, directions: ArrayF, lower: ArrayF, upper: ArrayF) -> np.ndarray:
+    """Whether rays ``origin + t d`` (``t > 0``; origin (3,), directions (N, 3)) meet the axis-aligned
+    box ``lower <= p <= upper`` (slab test, vectorised): mask (N,)."""
+    directions = np.asarray(directions, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = 1.0 / directions
+        near = (np.asarray(lower, dtype=float) - origin) * inverse
+        far = (np.asarray(upper, dtype=float) - origin) * inverse
+    entry = np.nanmax(np.minimum(near, far), axis=1)
+    leave = np.nanmin(np.maximum(near, far), axis=1)
+    return (leave >= np.maximum(entry, 0.0)) & np.isfinite(leave)

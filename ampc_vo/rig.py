@@ -52,11 +52,31 @@ def camera_rotation(yaw: float, pitch_down: float = 0.0) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class BodyBox:
+    """The outline of a body as a box in its own frame (metres): the trailer's box, which the
+    tractor's mirror cameras see (rig.yaml ``bodies.<name>.box``, DESIGN 5)."""
+
+    front_x: float
+    rear_x: float
+    half_width: float
+    bottom_z: float
+    top_z: float
+
+    def lower(self) -> np.ndarray:
+        return np.array([self.rear_x, -self.half_width, self.bottom_z])
+
+    def upper(self) -> np.ndarray:
+        return np.array([self.front_x, self.half_width, self.top_z])
+
+
+@dataclass(frozen=True)
 class Body:
-    """A rigid body of the vehicle. ``axle_x`` is the signed x of its rigid axle's midpoint."""
+    """A rigid body of the vehicle. ``axle_x`` is the signed x of its rigid axle's midpoint;
+    ``box`` its outline, when known (the other body's cameras may see it)."""
 
     name: str
     axle_x: float
+    box: BodyBox | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -387,9 +407,9 @@ def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
     for name, spec in raw_bodies.items():
         if name not in BODY_NAMES:
             raise ConfigError(f"{source}: bodies.{name}: unknown body (expected one of {BODY_NAMES})")
-        _check_keys(spec, ("axle_x",), f"bodies.{name}.", source)
+        _check_keys(spec, ("axle_x", "box"), f"bodies.{name}.", source)
         axle_x = _number(_require(spec, "axle_x", f"bodies.{name}.", source), f"bodies.{name}.axle_x", source)
-        bodies[name] = Body(name, axle_x)
+        bodies[name] = Body(name, axle_x, _body_box(spec.get("box"), f"bodies.{name}.box", source))
     if "tractor" not in bodies:
         raise ConfigError(f"{source}: bodies.tractor: missing")
     if "trailer" in bodies and bodies["trailer"].axle_x >= 0.0:
@@ -458,6 +478,24 @@ def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
     return rig
 
 
+BOX_KEYS = ("front_x", "rear_x", "half_width", "bottom_z", "top_z")
+
+
+def _body_box(raw: Any, where: str, source: str) -> BodyBox | None:
+    """``bodies.<name>.box`` of rig.yaml: ``{front_x, rear_x, half_width, bottom_z, top_z}`` (m, body frame)."""
+    if raw is None:
+        return None
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{source}: {where}: expected a mapping with {', '.join(BOX_KEYS)}")
+    _check_keys(raw, BOX_KEYS, where + ".", source)
+    box = BodyBox(*(_number(_require(raw, key, where + ".", source), f"{where}.{key}", source) for key in BOX_KEYS))
+    if not (box.front_x > box.rear_x and box.half_width > 0.0 and box.top_z > box.bottom_z):
+        raise ConfigError(f"{source}: {where}: expected front_x > rear_x, half_width > 0 and top_z > bottom_z, got {raw}")
+    if max(abs(box.front_x), abs(box.rear_x), box.half_width, abs(box.bottom_z), abs(box.top_z)) > MAX_MOUNT_DISTANCE_M:
+        raise ConfigError(f"{source}: {where}: a box over {MAX_MOUNT_DISTANCE_M:g} m from the hitch (millimetres instead of metres?)")
+    return box
+
+
 def rig_to_dict(rig: Rig) -> dict:
     """The ``rig.yaml`` mapping of a rig (inverse of :func:`rig_from_dict`)."""
     cameras = []
@@ -478,7 +516,12 @@ def rig_to_dict(rig: Rig) -> dict:
             cameras[-1]["readout_time"] = float(camera.readout_time)
         if camera.topic is not None:
             cameras[-1]["topic"] = camera.topic
-    return {"hitch_height": float(rig.hitch_height), "bodies": {name: {"axle_x": float(body.axle_x)} for name, body in rig.bodies.items()}, "cameras": cameras}
+    bodies = {}
+    for name, body in rig.bodies.items():
+        bodies[name] = {"axle_x": float(body.axle_x)}
+        if body.box is not None:
+            bodies[name]["box"] = {key: float(getattr(body.box, key)) for key in BOX_KEYS}
+    return {"hitch_height": float(rig.hitch_height), "bodies": bodies, "cameras": cameras}
 
 
 def load_rig(path: str | Path) -> Rig:

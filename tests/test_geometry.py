@@ -107,3 +107,14 @@ def test_sampson_residual_approximates_angular_error():
 def test_check_bearings_rejects_bad_input(bad):
     with pytest.raises(BearingError):
         check_bearings(bad)
+
+
+def test_rays_hit_box_slab_test():
+    """Rays from outside meet a unit box ahead, miss it beside and behind; a ray from inside meets it."""
+    from ampc_vo.geometry import rays_hit_box
+
+    lower, upper = np.array([2.0, -0.5, -0.5]), np.array([3.0, 0.5, 0.5])
+    directions = np.array([[1.0, 0.0, 0.0], [1.0, 0.2, 0.0], [1.0, 0.3, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.2]])
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    np.testing.assert_array_equal(rays_hit_box(np.zeros(3), directions, lower, upper), [True, True, False, False, False, True])
+    assert rays_hit_box(np.array([2.5, 0.0, 0.0]), directions, lower, upper).all()

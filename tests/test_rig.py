@@ -139,6 +139,11 @@ def _delete(path: tuple):
         (_set(("cameras", 0, "T_body_camera", "rotation"), [0.0, 0.0, 0.0]), "cameras[0].T_body_camera.rotation", "unknown key"),
         (_set(("bodies", "trailer", "axle"), -8.0), "bodies.trailer.axle", "unknown key"),
         (_set(("camera",), []), "camera", "unknown key"),
+        (_set(("bodies", "trailer", "box"), {"front_x": 1.0, "rear_x": -12.0, "half_width": 1.25, "bottom_z": 0.0}), "bodies.trailer.box.top_z", "missing"),
+        (_set(("bodies", "trailer", "box"), {"front_x": -12.0, "rear_x": 1.0, "half_width": 1.25, "bottom_z": 0.0, "top_z": 2.7}),
+         "bodies.trailer.box", "front_x > rear_x"),
+        (_set(("bodies", "trailer", "box"), {"front_x": 1000.0, "rear_x": -12000.0, "half_width": 1250.0, "bottom_z": 0.0, "top_z": 2700.0}),
+         "bodies.trailer.box", "millimetres"),
     ],
 )
 def test_rig_validation_errors_name_file_and_field(tmp_path, default_rig, change, field, problem):
@@ -198,3 +203,18 @@ def test_new_rig_keys_are_validated(tmp_path, default_rig, change, problem):
     with pytest.raises(ConfigError) as error:
         load_rig(tmp_path / "rig.yaml")
     assert problem in str(error.value)
+
+
+def test_trailer_box_round_trip(tmp_path, default_rig):
+    """``bodies.trailer.box`` (the trailer's outline, which the tractor's mirror cameras see) is
+    read, kept exactly through save/load, and absent by default."""
+    assert default_rig.bodies["trailer"].box is None
+    raw = rig_to_dict(default_rig)
+    raw["bodies"]["trailer"]["box"] = {"front_x": 0.8, "rear_x": -12.4, "half_width": 1.25, "bottom_z": 0.0, "top_z": 2.7}
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(raw))
+    rig = load_rig(tmp_path / "rig.yaml")
+    box = rig.bodies["trailer"].box
+    np.testing.assert_allclose(box.lower(), [-12.4, -1.25, 0.0])
+    np.testing.assert_allclose(box.upper(), [0.8, 1.25, 2.7])
+    save_rig(rig, tmp_path / "again.yaml")
+    assert load_rig(tmp_path / "again.yaml").bodies == rig.bodies

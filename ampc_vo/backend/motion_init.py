@@ -21,10 +21,10 @@ import numpy as np
 
 from ampc_vo.config import VoConfig
 from ampc_vo.epipolar import gec_sampson
-from ampc_vo.geometry import make_pose
+from ampc_vo.geometry import make_pose, rays_hit_box, rot_z
 from ampc_vo.scale.ground import GroundScaleOptions, ground_plane_chord
 from ampc_vo.observations import FrameObservations, match_tracks
-from ampc_vo.rig import Camera, Rig
+from ampc_vo.rig import BodyBox, Camera, Rig
 from ampc_vo.backend.smoother import MotionInit, MotionStatus
 from ampc_vo.scale.stereo import StereoMotion, StereoScaleOptions, stereo_motion
 from ampc_vo.solvers import RansacConfig as SolverRansacConfig
@@ -37,6 +37,11 @@ logger = logging.getLogger(__name__)
 # used when it has none (radians)
 _MIN_YAW_SIGMA = float(np.radians(0.01))
 _DEFAULT_YAW_SIGMA = float(np.radians(0.1))
+# the trailer's box in the tractor's cameras (on_trailer_box): grown by this (m), at the window's
+# hitch angle +- this (radians; its error between keyframes), or around 0 +- the other before any
+_BOX_MARGIN_M = 0.05
+_HITCH_MARGIN = float(np.radians(2.0))
+_UNKNOWN_HITCH_MARGIN = float(np.radians(10.0))
 
 
 @dataclass(frozen=True)
@@ -58,6 +63,27 @@ class CameraPairs:
     def as_group(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(body_bearings_i, body_bearings_j, center)``, the group the solvers take."""
         return self.body_bearings_i, self.body_bearings_j, self.camera.center
+
+    def subset(self, keep: np.ndarray) -> "CameraPairs":
+        """The correspondences where ``keep`` (N,) is true."""
+        times = {} if self.times_i is None else {"times_i": self.times_i[keep], "times_j": self.times_j[keep]}
+        return CameraPairs(self.camera, self.track_ids[keep], self.bearings_i[keep], self.bearings_j[keep],
+                           self.body_bearings_i[keep], self.body_bearings_j[keep], **times)
+
+
+def on_trailer_box(pair: CameraPairs, box: BodyBox, hitch_angles: np.ndarray, margin: float) -> np.ndarray:
+    """Mask (N,) of a tractor camera's correspondences whose ray, in either view, meets the
+    trailer's ``box`` (grown by ``margin`` metres) at any of ``hitch_angles`` (radians): the trailer
+    seen in a mirror moves with the truck, not with the world (DESIGN 2.3). The hitch is the
+    tractor frame's origin and ``R_tractor_trailer = Rz(theta)`` (DESIGN 1)."""
+    lower, upper = box.lower() - margin, box.upper() + margin
+    hits = np.zeros(len(pair), bool)
+    for theta in np.atleast_1d(hitch_angles):
+        R_trailer_tractor = rot_z(-float(theta))
+        origin = R_trailer_tractor @ pair.camera.center
+        for bearings in (pair.body_bearings_i, pair.body_bearings_j):
+            hits |= rays_hit_box(origin, bearings @ R_trailer_tractor.T, lower, upper)
+    return hits
 
 
 def camera_pairs(rig: Rig, body: str, first: FrameObservations, second: FrameObservations) -> list[CameraPairs]:
@@ -95,6 +121,7 @@ def _solver_config(config: VoConfig, cameras: list[Camera]) -> SolverRansacConfi
         confidence=config.ransac.confidence,
         max_iterations=config.ransac.max_iterations,
         min_inliers=config.ransac.min_inliers,
+        min_inlier_fraction=config.ransac.min_inlier_fraction,
         min_chord=config.keyframes.standstill_distance_m,
         chord_direction_sigma=np.radians(config.ransac.model_direction_sigma_deg),
         seed=config.ransac.seed,
@@ -116,6 +143,19 @@ def _inlier_tracks(pairs: list[CameraPairs], inlier_masks: list[np.ndarray]) -> 
     if len(inlier_masks) != len(pairs):
         return {}
     return {pair.camera.name: pair.track_ids[np.asarray(mask, dtype=bool)] for pair, mask in zip(pairs, inlier_masks) if len(mask) == len(pair)}
+
+
+def _with_full_masks(estimate: TractorMotionEstimate, left_out: list[np.ndarray]) -> TractorMotionEstimate:
+    """``estimate`` of the correspondences not ``left_out`` (per camera) with its inlier masks over
+    all of them (the left-out ones are no inliers)."""
+    if not any(mask.any() for mask in left_out) or len(estimate.inlier_masks) != len(left_out):
+        return estimate
+    full = []
+    for mask, inliers in zip(left_out, estimate.inlier_masks):
+        expanded = np.zeros(mask.shape[0], bool)
+        expanded[~mask] = inliers
+        full.append(expanded)
+    return dataclasses.replace(estimate, inlier_masks=full)
 
 
 def _chord_of(T_i_j: np.ndarray, axle_x: float) -> float:
@@ -168,13 +208,16 @@ class MotionInitializer:
         self._stereo_options = StereoScaleOptions(pixel_sigma=config.smoother.pixel_sigma, max_depth_m=config.scale.stereo_max_depth_m)
 
     def tractor(self, first: FrameObservations, second: FrameObservations, predicted: np.ndarray, prediction_sigma: float | None = None,
-                speed_before: float | None = None) -> TractorMotion:
+                speed_before: float | None = None, hitch: float | None = None) -> TractorMotion:
         """Tractor motion ``T_first_second``; ``predicted`` (constant velocity) fills what is unknown:
         the chord in straight driving and everything when there are too few tracks. With
         ``prediction_sigma`` (metres) the RANSAC chord is fused with the predicted one (the 2-point
         chord is weak on gentle curves, DESIGN 2.3; trucks change speed slowly). ``speed_before``
-        (m/s, measured before the pair; None: unknown): a parallax standstill is accepted only if
-        the truck could brake from it to rest within the pair (``ransac.max_deceleration_mps2``)."""
+        (m/s, signed, < 0 reversing; measured before the pair; None: unknown): a parallax standstill
+        is accepted, and the direction of travel may change, only if the truck could brake from it
+        to rest within the pair (``ransac.max_deceleration_mps2``).
+        ``hitch`` (radians, the window's; None: unknown): where the trailer's box is in the tractor's
+        cameras; tracks on it are left out (rig.yaml ``bodies.trailer.box``)."""
         pairs = camera_pairs(self.rig, "tractor", first, second)
         shared = sum(len(pair) for pair in pairs)
         predicted_chord = float(np.linalg.norm(predicted[:2, 3]))
@@ -186,14 +229,20 @@ class MotionInitializer:
                 return TractorMotion(stereo.T_i_j, MotionStatus.OK, self._stereo_estimate(pairs, stereo), shared, stereo.as_scale_chord())
         # signed: the direction of travel of the prediction (used where the pair's chord is not measured)
         chord_prior = (1.0 if predicted[0, 3] >= 0.0 else -1.0) * max(predicted_chord, 1e-3)
-        estimate = estimate_tractor_motion(pairs, self.rig.axle_x("tractor"), self._tractor_config, chord_prior=chord_prior, rng=self._rng)
+        on_trailer = self._on_trailer(pairs, hitch)
+        ego_pairs = [pair.subset(~mask) for pair, mask in zip(pairs, on_trailer)]
         dt = second.timestamp - first.timestamp
+        # at speed the direction of travel cannot change within the pair (it must brake to rest first)
+        direction = None if speed_before is None or self._can_stop(abs(speed_before), dt) else float(np.sign(speed_before))
+        estimate = estimate_tractor_motion(ego_pairs, self.rig.axle_x("tractor"), self._tractor_config, chord_prior=chord_prior, rng=self._rng,
+                                           direction=direction)
         if estimate.status is SolverStatus.STANDSTILL and speed_before is not None and not self._can_stop(abs(speed_before), dt):
             logger.info("frames %d-%d: parallax says standstill, but the truck cannot stop from %.1f m/s within %.2f s "
                         "(ransac.max_deceleration_mps2): motion estimated without the still tracks (median parallax: %s)",
                         first.frame, second.frame, abs(speed_before), dt, _parallax_summary(pairs))
-            estimate = estimate_tractor_motion(pairs, self.rig.axle_x("tractor"), self._tractor_config,
-                                               chord_prior=chord_prior, rng=self._rng, moving=True)
+            estimate = estimate_tractor_motion(ego_pairs, self.rig.axle_x("tractor"), self._tractor_config,
+                                               chord_prior=chord_prior, rng=self._rng, moving=True, direction=direction)
+        estimate = _with_full_masks(estimate, on_trailer)
         status = _status(estimate.status)
         if shared < self.config.keyframes.min_tracks:
             status = MotionStatus.TOO_FEW_TRACKS
@@ -211,6 +260,19 @@ class MotionInitializer:
             status = MotionStatus.TOO_FEW_TRACKS
             T_i_j = predicted
         return TractorMotion(T_i_j, status, estimate, shared)
+
+    def _on_trailer(self, pairs: list[CameraPairs], hitch: float | None) -> list[np.ndarray]:
+        """Per tractor camera, the mask of its correspondences on the trailer's box (rig.yaml
+        ``bodies.trailer.box``; :func:`on_trailer_box`) at the hitch angle ``hitch`` (the window's;
+        None: not known yet, a straight start) +- ``_HITCH_MARGIN``, left out of the tractor's
+        motion; none without a box."""
+        box = self.rig.bodies["trailer"].box if self.rig.has_trailer else None
+        if box is None:
+            return [np.zeros(len(pair), bool) for pair in pairs]
+        centre = 0.0 if hitch is None else float(hitch)
+        margin = _UNKNOWN_HITCH_MARGIN if hitch is None else _HITCH_MARGIN
+        angles = centre + np.linspace(-margin, margin, 5)
+        return [on_trailer_box(pair, box, angles, _BOX_MARGIN_M) for pair in pairs]
 
     def _can_stop(self, speed: float, dt: float) -> bool:
         """Whether a truck at ``speed`` (m/s) can be at rest within a pair of ``dt`` seconds: braking

@@ -91,12 +91,22 @@ class RunSummary:
 
 
 def _with_chord_length(T_i_j: np.ndarray, chord: float) -> np.ndarray:
-    """``T_i_j`` with its translation scaled to length ``chord`` (direction and rotation kept; a
-    motion without translation moves straight ahead)."""
+    """``T_i_j`` with its translation scaled to the signed length ``chord`` (< 0: backwards; the
+    line of the translation and the rotation kept; a motion without translation moves along x)."""
     T = T_i_j.copy()
     length = float(np.linalg.norm(T[:3, 3]))
-    T[:3, 3] = T[:3, 3] * (chord / length) if length > 1e-9 else np.array([chord, 0.0, 0.0])
+    direction = T[:3, 3] / length if length > 1e-9 else np.array([1.0, 0.0, 0.0])
+    if direction[0] * chord < 0.0:
+        direction = -direction
+    T[:3, 3] = direction * abs(chord)
     return T
+
+
+def _velocity_of(motion: np.ndarray, dt: float) -> tuple[float, float]:
+    """``(yaw rate, signed speed)`` of a body's ``motion`` (``T_i_j``) over ``dt`` seconds: the speed
+    is negative when the body's origin moved backwards in its own frame (reversing)."""
+    speed = float(np.linalg.norm(motion[:2, 3])) / dt
+    return yaw_of(motion) / dt, speed if motion[0, 3] >= 0.0 else -speed
 
 
 class OdometryPipeline:
@@ -116,7 +126,7 @@ class OdometryPipeline:
         self.smoother = ArticulatedSmoother(rig, config)
         self.estimates: list[KeyframeEstimate] = []
         self._last_keyframe: FrameObservations | None = None
-        self._velocity: np.ndarray | None = None  # last tractor motion per second: (yaw rate, speed)
+        self._velocity: np.ndarray | None = None  # last tractor motion per second: (yaw rate, signed speed; < 0 reversing)
         self._trailer_velocity: tuple[float, float] | None = None
         self._hitch: float | None = None
         self._frames = 0
@@ -130,7 +140,7 @@ class OdometryPipeline:
     # ------------------------------------------------------------------ prediction
     def _predicted(self, elapsed_s: float, velocity: tuple[float, float] | None) -> np.ndarray:
         """Constant-velocity tractor (or trailer) motion over ``elapsed_s``: arc of the last yaw rate
-        and speed (before any motion was estimated a straight 1 m/s guess, used only as the RANSAC
+        and signed speed (backwards when reversing; before any motion was estimated a straight 1 m/s guess, used only as the RANSAC
         chord prior of the scale bootstrap: it never reaches the outputs)."""
         yaw_rate, speed = velocity if velocity is not None else (0.0, 1.0)
         yaw = yaw_rate * elapsed_s
@@ -162,7 +172,7 @@ class OdometryPipeline:
         if wheel is not None:  # wheel odometry measures the chord: the prediction takes it
             predicted, prediction_sigma = _with_chord_length(predicted, wheel), self.config.scale.wheel_speed_sigma_m
         tractor = self.initializer.tractor(self._last_keyframe, frame, predicted, prediction_sigma if self._velocity is not None else None,
-                                           speed_before=self._velocity[1] if self._velocity is not None else None)
+                                           speed_before=self._velocity[1] if self._velocity is not None else None, hitch=self._hitch)
         decision = self.policy.decide(tractor, elapsed)
         if not decision.is_keyframe:
             return []
@@ -213,7 +223,7 @@ class OdometryPipeline:
         scale = self.config.scale
         wheel = self._wheel_chord(self._last_keyframe, frame)  # wheel odometry measures the chord directly
         predicted = self._predicted(elapsed, None) if wheel is None else _with_chord_length(self._predicted(elapsed, None), wheel)
-        tractor = self.initializer.tractor(self._last_keyframe, frame, predicted)
+        tractor = self.initializer.tractor(self._last_keyframe, frame, predicted, hitch=self._hitch)
         rotation = abs(tractor.yaw_change) >= self.policy.min_rotation_rad
         observed = tractor.status is MotionStatus.OK and tractor.chord >= self.config.keyframes.standstill_distance_m
         if not (observed or rotation or tractor.status is MotionStatus.TOO_FEW_TRACKS or elapsed >= scale.bootstrap_interval_s - 1e-9):
@@ -310,10 +320,9 @@ class OdometryPipeline:
         if dt <= 0 or newest.tractor_status == MotionStatus.TOO_FEW_TRACKS.value:
             return
         motion = relative_pose(previous.T_world_tractor, newest.T_world_tractor)
-        self._velocity = (yaw_of(motion) / dt, float(np.linalg.norm(motion[:2, 3])) / dt)
+        self._velocity = _velocity_of(motion, dt)
         if newest.T_world_trailer is not None and previous.T_world_trailer is not None:
-            trailer_motion = relative_pose(previous.T_world_trailer, newest.T_world_trailer)
-            self._trailer_velocity = (yaw_of(trailer_motion) / dt, float(np.linalg.norm(trailer_motion[:2, 3])) / dt)
+            self._trailer_velocity = _velocity_of(relative_pose(previous.T_world_trailer, newest.T_world_trailer), dt)
 
     def run(self, frames: Iterable[FrameObservations], total: int | None = None, progress: bool | None = None,
             on_frame: Callable[[FrameObservations | None, list[KeyframeEstimate]], None] | None = None) -> RunSummary:

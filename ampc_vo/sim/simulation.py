@@ -46,9 +46,9 @@ from ampc_vo.sim.attitude import BodyAngles, mount_vibration, poses_on_road
 from ampc_vo.sim.kinematics import AxleGroup, simulate_kinematics
 from ampc_vo.sim.road import FLAT_ROAD, RoadSurface
 from ampc_vo.io.measurements import MEASUREMENTS_FILE, Measurements, load_measurements, save_measurements
-from ampc_vo.rig import Rig
+from ampc_vo.rig import BodyBox, Rig
 from ampc_vo.sim.scene import Scene, build_scene, route_centerline
-from ampc_vo.sim.traffic import DynamicScene, build_dynamic_scene
+from ampc_vo.sim.traffic import DynamicScene, TrailerBodySpec, build_dynamic_scene
 from ampc_vo.sim.config import SceneConfig, SimulationConfig, load_sim_config
 
 __all__ = [
@@ -578,7 +578,7 @@ def simulate_dataset(config: SimulationConfig | str | Path, out_dir: str | Path,
             render_sequence(out_dir, result.rig, result.trajectory, result.scene, options=options, progress=progress,
                             **result.render_inputs())
             images_written = True
-    write_dataset(out_dir, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory,
+    write_dataset(out_dir, rig_with_trailer_box(result.rig, result.config.trailer_body), result.trajectory.timestamps, groundtruth=result.trajectory,
                   measurements=result.measurements, with_images=images_written,
                   camera_timestamps=_stated_capture_times(result))
     from ampc_vo.sim.wheel_odometry import write_simulated_wheel_speed  # issue 15: wheel_speed.csv
@@ -586,6 +586,18 @@ def simulate_dataset(config: SimulationConfig | str | Path, out_dir: str | Path,
     write_simulated_wheel_speed(out_dir, result.trajectory, result.config.seed)
     LOGGER.info("dataset written to %s in %.1f s", out_dir, time.perf_counter() - started)
     return dataclasses.replace(result, images_written=images_written)
+
+
+def rig_with_trailer_box(rig: Rig, trailer_body: TrailerBodySpec | None) -> Rig:
+    """``rig`` whose trailer states the box the simulator rendered (``trailer_body``), as a user
+    measures their trailer (rig.yaml ``bodies.trailer.box``); unchanged without one or with a box given."""
+    if trailer_body is None or not rig.has_trailer or rig.bodies["trailer"].box is not None:
+        return rig
+    bottom = trailer_body.floor_height_m - rig.hitch_height
+    box = BodyBox(front_x=trailer_body.front_x_m, rear_x=trailer_body.front_x_m - trailer_body.length_m, half_width=0.5 * trailer_body.width_m,
+                  bottom_z=bottom, top_z=bottom + trailer_body.height_m)
+    bodies = {**rig.bodies, "trailer": dataclasses.replace(rig.bodies["trailer"], box=box)}
+    return dataclasses.replace(rig, bodies=bodies)
 
 
 def _stated_capture_times(result: SimulationResult) -> dict[str, np.ndarray] | None:

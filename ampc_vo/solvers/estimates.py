@@ -21,7 +21,8 @@ class RansacConfig:
     ``sampson_threshold``: inlier threshold on the Sampson GEC residual (about 3 sigma, sigma =
     pixel noise / focal). ``confidence``, ``min_iterations``, ``max_iterations``, ``batch_size``:
     adaptive sample count (hypotheses are drawn and scored in batches). ``min_inliers``: fewer
-    gives ``NO_CONSENSUS``. ``min_chord``: a tractor displacement below this is a standstill.
+    gives ``NO_CONSENSUS``; so does a tractor motion with inliers below ``min_inlier_fraction`` of
+    the correspondences (a planar motion that fits a few of them: pitch over a bump, traffic). ``min_chord``: a tractor displacement below this is a standstill.
     ``standstill_parallax``: median angle between the two bearings of a correspondence below
     which nothing moved (a planar truck cannot rotate in place). ``min_camera_axle_offset``:
     cameras closer than this to the axle in x give no scale (DESIGN 2.1).
@@ -54,6 +55,7 @@ class RansacConfig:
     max_iterations: int = 500
     batch_size: int = 32
     min_inliers: int = 8
+    min_inlier_fraction: float = 0.0
     min_chord: float = 0.05
     max_chord: float = 20.0
     standstill_parallax: float = 0.003

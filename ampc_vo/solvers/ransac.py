@@ -101,6 +101,7 @@ def estimate_tractor_motion(
     chord_prior: float | None = None,
     rng: np.random.Generator | None = None,
     moving: bool = False,
+    direction: float | None = None,
 ) -> TractorMotionEstimate:
     """Tractor motion from per-camera correspondences by RANSAC over the 2-point solver (DESIGN 2.1).
 
@@ -114,7 +115,10 @@ def estimate_tractor_motion(
     ``SCALE_UNOBSERVABLE`` but ``chord`` and ``T_i_j`` are then filled with it. ``moving``: the
     truck is known to move (it could not have stopped within the pair): no standstill test, and
     correspondences without parallax (on the vehicle itself, e.g. the trailer's box in a mirror, or
-    far on the line of motion) are left out.
+    far on the line of motion) are left out. ``direction`` (+1 forward, -1 backward; None:
+    either): the sign the chord must have when the truck could not have changed its direction
+    of travel within the pair (at speed it must brake to rest first); hypotheses against it are
+    not drivable (traffic moving with the truck looks like its reverse).
     """
     config = config or RansacConfig()
     rng = rng if rng is not None else np.random.default_rng(config.seed)
@@ -136,7 +140,8 @@ def estimate_tractor_motion(
     if not np.any(scale_capable):
         return _tractor_scale_free(groups, bearings_i, bearings_j, axle_x, config, chord_prior, rng)
 
-    pool, drawn = _sample_tractor_hypotheses(groups, bearings_i, bearings_j, centers, np.flatnonzero(scale_capable), axle_x, config, rng)
+    pool, drawn = _sample_tractor_hypotheses(groups, bearings_i, bearings_j, centers, np.flatnonzero(scale_capable), axle_x, config, rng,
+                                             direction)
     if not pool or np.sum(pool[0][3]) < config.min_inliers:
         return TractorMotionEstimate(SolverStatus.NO_CONSENSUS, inlier_masks=empty_masks, num_hypotheses=drawn)
     _, yaw_change, chord, inliers = pool[0]
@@ -145,6 +150,10 @@ def estimate_tractor_motion(
         return TractorMotionEstimate(SolverStatus.OK, yaw_change, chord, T_i_j, _split(inliers, groups), int(np.sum(inliers)), drawn,
                                      chord_sign=float(np.sign(chord) or 1.0))
     refined = _local_optimization(groups, pool, axle_x, config)
+    if direction is not None:  # a chord seed or the refinement may cross zero
+        refined = [model for model in refined if model[2] * direction > 0.0]
+        if not refined:
+            return _scale_unobservable(groups, pool[0], axle_x, config, chord_prior, drawn, float("inf"))
     cost, refined_yaw, refined_chord, covariance, rms, refined_inliers, start = refined[0]
     chord_sigma = float(np.sqrt(covariance[1, 1])) if np.isfinite(covariance[1, 1]) else float("inf")
     if config.chord_direction_sigma > 0.0:  # the model's share (RansacConfig): dominant at small yaw changes
@@ -154,7 +163,7 @@ def estimate_tractor_motion(
         return _scale_unobservable(groups, pool[0], axle_x, config, chord_prior, drawn, chord_sigma)
     count = int(np.sum(refined_inliers))
     yaw_sigma = float(np.sqrt(covariance[0, 0]))
-    if count < config.min_inliers:
+    if count < _least_inliers(groups, config):
         return TractorMotionEstimate(SolverStatus.NO_CONSENSUS, inlier_masks=empty_masks, num_hypotheses=drawn)
     masks = _split(refined_inliers, groups)
     if abs(refined_chord) < config.min_chord:
@@ -171,6 +180,11 @@ def estimate_tractor_motion(
     return TractorMotionEstimate(SolverStatus.OK, refined_yaw, refined_chord, T_i_j, masks, count, drawn, yaw_sigma, chord_sigma, sign, rms)
 
 
+def _least_inliers(groups: Sequence[Group], config: RansacConfig) -> float:
+    """Inliers a tractor motion needs: ``min_inliers`` and ``min_inlier_fraction`` of the correspondences."""
+    return max(config.min_inliers, config.min_inlier_fraction * sum(len(group) for group in groups))
+
+
 def _drivable(yaw_change: np.ndarray | float, chord: np.ndarray | float, yaw_tolerance: np.ndarray | float) -> np.ndarray | bool:
     """Whether a truck can drive a motion: the axle's turn radius ``|chord / yaw_change|`` not
     below ``_TIGHTEST_TURN_RADIUS_M``, within ``yaw_tolerance`` (radians) of the yaw change. Moving
@@ -181,10 +195,11 @@ def _drivable(yaw_change: np.ndarray | float, chord: np.ndarray | float, yaw_tol
 
 def _sample_tractor_hypotheses(
     groups: Sequence[Group], bearings_i: np.ndarray, bearings_j: np.ndarray, centers: np.ndarray, capable_index: np.ndarray,
-    axle_x: float, config: RansacConfig, rng: np.random.Generator,
+    axle_x: float, config: RansacConfig, rng: np.random.Generator, direction: float | None = None,
 ) -> tuple[list[Hypothesis], int]:
     """Adaptive RANSAC over 2-point samples (the first point from a camera off the axle); returns
-    the cheirality-checked hypotheses sorted by MSAC cost, and the number of samples drawn."""
+    the cheirality-checked, drivable hypotheses (chord of sign ``direction`` where given) sorted
+    by MSAC cost, and the number of samples drawn."""
     total = len(bearings_i)
     pool: list[Hypothesis] = []
     best_cost, drawn, required = np.inf, 0, float(config.min_iterations)
@@ -196,6 +211,8 @@ def _sample_tractor_hypotheses(
         sample = np.stack([first, second], axis=1)
         yaw, chord, valid = tractor_motion_2pt_batch(bearings_i[sample], bearings_j[sample], centers[sample], axle_x)
         valid &= _drivable(yaw, chord, _SAMPLE_YAW_TOLERANCE)
+        if direction is not None:
+            valid &= chord * direction > 0.0
         if not np.any(valid):
             continue
         yaw, chord = yaw[valid], chord[valid]
@@ -256,7 +273,7 @@ def _scale_unobservable(
         robust_threshold=config.sampson_threshold, robust_rounds=config.refine_rounds,
     )
     _, scored = _score(groups, *ackermann_motion(np.array([yaw_change]), np.array([fixed]), axle_x), config.sampson_threshold, check_top=1)
-    if np.sum(scored[0]) < config.min_inliers:
+    if np.sum(scored[0]) < _least_inliers(groups, config):
         return TractorMotionEstimate(SolverStatus.NO_CONSENSUS, inlier_masks=[np.zeros(g.size, bool) for g in groups], num_hypotheses=drawn)
     yaw_sigma = float(np.sqrt(covariance[0, 0])) if np.isfinite(covariance[0, 0]) else float("nan")
     reported = fixed if known else float("nan")

@@ -9,7 +9,7 @@ import pytest
 from ampc_vo.backend.motion_init import MotionInitializer
 from ampc_vo.backend.smoother import MotionStatus
 from ampc_vo.config import VoConfig
-from ampc_vo.geometry import make_pose
+from ampc_vo.geometry import make_pose, rot_z
 from ampc_vo.observations import CameraObservations, FrameObservations
 from ampc_vo.rig import load_rig
 from ampc_vo.solvers import ackermann_motion
@@ -62,3 +62,60 @@ def test_standstill_stays_when_the_truck_was_slow_enough_to_stop() -> None:
     assert initializer.tractor(first, second, predicted, speed_before=0.3).status is MotionStatus.STANDSTILL
     assert initializer.tractor(first, second, predicted, speed_before=-0.5).status is MotionStatus.STANDSTILL  # reversing slowly
     assert initializer.tractor(first, second, predicted, speed_before=5.0).status is not MotionStatus.STANDSTILL  # no stop from 5 m/s in 0.1 s
+
+
+SEMITRAILER = load_rig(Path(__file__).resolve().parents[2] / "configs" / "rigs" / "semitrailer.yaml")
+TRAILER_BOX = {"front_x": 0.8, "rear_x": -12.4, "half_width": 1.25, "bottom_z": 0.0, "top_z": 2.7}
+
+
+def _with_box(rig):
+    import dataclasses
+
+    from ampc_vo.rig import BodyBox
+
+    trailer = dataclasses.replace(rig.bodies["trailer"], box=BodyBox(**TRAILER_BOX))
+    return dataclasses.replace(rig, bodies={**rig.bodies, "trailer": trailer})
+
+
+def _observe_tractor(rig, points_i: np.ndarray, points_j: np.ndarray, frame_j: int) -> tuple[dict, dict]:
+    """Tractor cameras' observations of points given in the tractor frame at views i and j."""
+    first, second = {}, {}
+    for camera in rig.cameras_on("tractor"):
+        T_camera_body = np.linalg.inv(camera.T_body_camera)
+        pixels_i, seen_i = camera.project(points_i @ T_camera_body[:3, :3].T + T_camera_body[:3, 3])
+        pixels_j, seen_j = camera.project(points_j @ T_camera_body[:3, :3].T + T_camera_body[:3, 3])
+        seen = np.flatnonzero(seen_i & seen_j)
+        first[camera.name] = CameraObservations(camera.name, seen, pixels_i[seen], camera.unproject(pixels_i[seen]))
+        second[camera.name] = CameraObservations(camera.name, seen, pixels_j[seen], camera.unproject(pixels_j[seen]))
+    return first, second
+
+
+def test_tracks_on_the_trailer_box_are_left_out_of_the_tractor_motion() -> None:
+    """Reversing a jack-knifed semitrailer (hitch -40 deg), its box fills the mirror cameras and
+    moves with the truck, turning only by the hitch's change: the tractor RANSAC took that cluster
+    for the truck's motion. With the trailer's box in rig.yaml (``bodies.trailer.box``) the tracks
+    whose rays meet it at the window's hitch angle are left out, and the reversing motion (1.2 m
+    back, 5 deg yaw) is found."""
+    rng = np.random.default_rng(11)
+    axle_x = SEMITRAILER.axle_x("tractor")
+    T_i_j = make_pose(*ackermann_motion(np.radians(-5.0), -1.2, axle_x))
+    theta_i, theta_j = np.radians(-40.0), np.radians(-41.0)
+    # static world: walls and ground around the truck; the trailer's box: points on its faces
+    world = np.column_stack([rng.uniform(-30, 30, 400), rng.choice([-1.0, 1.0], 400) * rng.uniform(6, 20, 400), rng.uniform(-1.2, 4.0, 400)])
+    box = np.column_stack([rng.uniform(-12.4, 0.8, 2500), rng.choice([-1.25, 1.25], 2500), rng.uniform(0.0, 2.7, 2500)])
+    world_j = (world - T_i_j[:3, 3]) @ T_i_j[:3, :3]
+    box_i, box_j = box @ rot_z(theta_i).T, box @ rot_z(theta_j).T
+    first, second = _observe_tractor(SEMITRAILER, np.concatenate([world, box_i]), np.concatenate([world_j, box_j]), 1)
+    frames = FrameObservations(0, 0.0, first), FrameObservations(1, 1.0, second)
+    on_box = sum(int(np.count_nonzero(obs.track_ids >= len(world))) for obs in first.values())
+    assert on_box > sum(len(obs) for obs in first.values()) / 2  # the box is most of what the tractor cameras see
+    predicted = make_pose(*ackermann_motion(np.radians(-4.0), -1.0, axle_x))
+    results = {}
+    for name, rig in (("box", _with_box(SEMITRAILER)), ("no box", SEMITRAILER)):
+        tractor = MotionInitializer(rig, VoConfig()).tractor(*frames, predicted, speed_before=1.2, hitch=theta_i)
+        results[name] = (tractor.status, np.degrees(tractor.yaw_change), tractor.T_i_j[0, 3])
+    status, yaw, forward = results["box"]
+    assert status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE), results
+    assert yaw == pytest.approx(-5.0, abs=0.2) and forward < -0.5, results
+    status, yaw, forward = results["no box"]
+    assert status is MotionStatus.STANDSTILL or abs(yaw + 5.0) > 1.0, results  # what the box's tracks did without it

@@ -215,3 +215,21 @@ def test_standing_start_hitch_is_right_or_honestly_uncertain(standing_start, tmp
     else:
         assert metrics.hitch_max_deg < 1.0                             # carried back over the standstill
     assert np.median(np.degrees(hitch.sigmas[moving])) < 0.5
+
+
+def test_the_constant_velocity_prediction_keeps_the_direction_of_travel() -> None:
+    """Reversing (the body's origin moving backwards in its own frame) gives a negative speed, so
+    the next pair is predicted backwards; a wheel-odometry chord sets the length with its own sign."""
+    from ampc_vo.backend.pipeline import _velocity_of, _with_chord_length
+    from ampc_vo.geometry import make_pose, rot_z
+
+    yaw = np.radians(3.0)
+    backwards = make_pose(rot_z(yaw), -1.2 * np.array([np.cos(0.5 * yaw), np.sin(0.5 * yaw), 0.0]))
+    yaw_rate, speed = _velocity_of(backwards, 0.2)
+    assert speed == pytest.approx(-6.0) and yaw_rate == pytest.approx(yaw / 0.2)
+    assert _velocity_of(np.linalg.inv(backwards), 0.2)[1] == pytest.approx(6.0)
+    for chord in (-0.5, 0.5):
+        scaled = _with_chord_length(backwards, chord)
+        assert np.linalg.norm(scaled[:3, 3]) == pytest.approx(0.5) and np.sign(scaled[0, 3]) == np.sign(chord)
+        assert abs(scaled[1, 3] / scaled[0, 3]) == pytest.approx(abs(backwards[1, 3] / backwards[0, 3]))
+        np.testing.assert_allclose(scaled[:3, :3], backwards[:3, :3])

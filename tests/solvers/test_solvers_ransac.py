@@ -206,3 +206,38 @@ def test_tractor_ransac_proposes_only_motions_a_truck_can_drive(rig: Rig) -> Non
         spinning = make_two_view_problem(rng, rig=rig, **{**DESIGN_2_3, "chord": 0.1, "yaw_change": np.deg2rad(10.0)})
         estimate = estimate_tractor_motion(spinning.groups("tractor"), spinning.tractor_axle_x)
         assert estimate.status is not SolverStatus.OK or abs(estimate.yaw_change) < 0.5 * spinning.yaw_change
+
+
+def _mixed(world, traffic) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per tractor camera, the correspondences of two problems on the same rig stacked."""
+    return [(np.vstack([a[0], b[0]]), np.vstack([a[1], b[1]]), a[2]) for a, b in zip(world.groups("tractor"), traffic.groups("tractor"))]
+
+
+def test_a_known_direction_of_travel_rejects_the_reverse_motion_of_traffic(rig: Rig) -> None:
+    """Traffic moving with the truck looks like the truck reversing. At speed the direction of
+    travel cannot change within a pair: with ``direction=+1`` the static world's forward motion is
+    found although the traffic's backward motion has more correspondences."""
+    rng = np.random.default_rng(36)
+    for _ in range(5):
+        world = make_two_view_problem(rng, rig=rig, **{**DESIGN_2_3, "points_per_body": 80, "outlier_fraction": 0.0, "chord": 1.5, "yaw_change": 0.05})
+        traffic = make_two_view_problem(rng, rig=rig, **{**DESIGN_2_3, "points_per_body": 120, "outlier_fraction": 0.0, "chord": -1.0, "yaw_change": -0.03})
+        either = estimate_tractor_motion(_mixed(world, traffic), world.tractor_axle_x)
+        assert either.status in (SolverStatus.OK, SolverStatus.SCALE_UNOBSERVABLE) and either.chord_sign < 0  # the majority wins
+        forward = estimate_tractor_motion(_mixed(world, traffic), world.tractor_axle_x, direction=1.0)
+        assert forward.status is SolverStatus.OK and forward.chord > 0
+        assert abs(forward.chord - world.chord) < 0.15 and np.rad2deg(abs(forward.yaw_change - world.yaw_change)) < 0.1
+        assert np.sum(forward.inlier_masks[0][:80]) >= 70 and np.sum(forward.inlier_masks[0][80:]) <= 5
+
+
+def test_a_motion_that_explains_few_correspondences_is_no_consensus(rig: Rig) -> None:
+    """A planar motion fitting a small share of the tracks (a bump's pitch, traffic) is no
+    measurement: with ``min_inlier_fraction`` 0.25 a pair of which 20 % fit gives NO_CONSENSUS,
+    while the same pair passes on the absolute ``min_inliers`` alone."""
+    rng = np.random.default_rng(37)
+    for _ in range(5):
+        problem = make_two_view_problem(rng, rig=rig, **{**DESIGN_2_3, "outlier_fraction": 0.8, "chord": 1.0, "yaw_change": 0.06})
+        loose = estimate_tractor_motion(problem.groups("tractor"), problem.tractor_axle_x)
+        assert loose.status in (SolverStatus.OK, SolverStatus.SCALE_UNOBSERVABLE)
+        assert np.rad2deg(abs(loose.yaw_change - problem.yaw_change)) < 0.3
+        strict = estimate_tractor_motion(problem.groups("tractor"), problem.tractor_axle_x, RansacConfig(min_inlier_fraction=0.25))
+        assert strict.status is SolverStatus.NO_CONSENSUS and strict.T_i_j is None
