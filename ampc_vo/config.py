@@ -178,9 +178,17 @@ class RansacConfig:
     # a tractor motion must explain at least this share of the shared tracks: a planar motion
     # that fits a few (a speed bump's pitch, traffic, the trailer's box) is no measurement
     min_inlier_fraction: float = 0.25
+    # where a planar motion explains less than attitude_fraction of the shared tracks, a change of
+    # the body's pitch and roll up to max_attitude_change_deg is searched (bumps, braking, vertical
+    # curves: a 0.5 deg pitch within a pair moves every bearing beyond the threshold); 0: planar only
+    max_attitude_change_deg: float = 2.0
+    attitude_fraction: float = 0.6
 
     def validate(self, where: str) -> None:
         _positive(self.threshold_px, where + "threshold_px")
+        _at_least(self.max_attitude_change_deg, 0.0, where + "max_attitude_change_deg")
+        if not 0.0 <= self.attitude_fraction <= 1.0:
+            raise _error(where + "attitude_fraction", f"must be in [0, 1], got {self.attitude_fraction}")
         if not 0.0 <= self.min_inlier_fraction < 1.0:
             raise _error(where + "min_inlier_fraction", f"must be in [0, 1), got {self.min_inlier_fraction}")
         _at_least(self.model_direction_sigma_deg, 0.0, where + "model_direction_sigma_deg")

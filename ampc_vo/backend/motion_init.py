@@ -122,6 +122,8 @@ def _solver_config(config: VoConfig, cameras: list[Camera]) -> SolverRansacConfi
         max_iterations=config.ransac.max_iterations,
         min_inliers=config.ransac.min_inliers,
         min_inlier_fraction=config.ransac.min_inlier_fraction,
+        max_attitude_change=float(np.radians(config.ransac.max_attitude_change_deg)),
+        attitude_fraction=config.ransac.attitude_fraction,
         min_chord=config.keyframes.standstill_distance_m,
         chord_direction_sigma=np.radians(config.ransac.model_direction_sigma_deg),
         seed=config.ransac.seed,
@@ -156,6 +158,15 @@ def _with_full_masks(estimate: TractorMotionEstimate, left_out: list[np.ndarray]
         expanded[~mask] = inliers
         full.append(expanded)
     return dataclasses.replace(estimate, inlier_masks=full)
+
+
+def _ackermann_like(T_like: np.ndarray | None, yaw_change: float, chord: float, axle_x: float) -> np.ndarray:
+    """The Ackermann motion of ``(yaw_change, chord)`` (DESIGN 2 (NH)) with the attitude change
+    (pitch, roll) of ``T_like`` kept: ``R = Rz(phi) Rz(yaw of T_like)^T R_like``."""
+    rotation, translation = ackermann_motion(yaw_change, chord, axle_x)
+    if T_like is not None:
+        rotation = rotation @ rot_z(-float(np.arctan2(T_like[1, 0], T_like[0, 0]))) @ T_like[:3, :3]
+    return make_pose(rotation, translation)
 
 
 def _chord_of(T_i_j: np.ndarray, axle_x: float) -> float:
@@ -311,7 +322,7 @@ class MotionInitializer:
         """The Ackermann motion (DESIGN 2 (NH)) of ``T_i_j``'s yaw change and direction with the axle chord ``chord``."""
         yaw_change = float(np.arctan2(T_i_j[1, 0], T_i_j[0, 0]))
         direction = 1.0 if _chord_of(T_i_j, self.rig.axle_x("tractor")) >= 0.0 else -1.0
-        return make_pose(*ackermann_motion(yaw_change, direction * chord, self.rig.axle_x("tractor")))
+        return _ackermann_like(T_i_j, yaw_change, direction * chord, self.rig.axle_x("tractor"))
 
     def _fuse_chord(self, estimate: TractorMotionEstimate, predicted_chord: float, prediction_sigma: float) -> np.ndarray:
         """Inverse-variance fusion of the RANSAC chord with the constant-velocity prediction; the yaw
@@ -321,7 +332,7 @@ class MotionInitializer:
         weight_predicted = 1.0 / prediction_sigma**2
         chord = (weight_measured * abs(estimate.chord) + weight_predicted * predicted_chord) / (weight_measured + weight_predicted)
         chord *= np.sign(estimate.chord) if estimate.chord != 0 else 1.0
-        return make_pose(*ackermann_motion(estimate.yaw_change, chord, self.rig.axle_x("tractor")))
+        return _ackermann_like(estimate.T_i_j, estimate.yaw_change, chord, self.rig.axle_x("tractor"))
 
     def keyframe(self, first: FrameObservations, second: FrameObservations, tractor: TractorMotion,
                  hitch_prior: float | None, predicted_trailer: np.ndarray | None = None) -> MotionInit:
@@ -434,6 +445,6 @@ class MotionInitializer:
         if init.tractor_status is MotionStatus.SCALE_UNOBSERVABLE:  # a better initial value than the predicted chord
             axle_x = self.rig.axle_x("tractor")
             sign = 1.0 if _chord_of(T_tractor, axle_x) >= 0.0 else -1.0
-            T_tractor = make_pose(*ackermann_motion(float(np.arctan2(T_tractor[1, 0], T_tractor[0, 0])), sign * chord, axle_x))
+            T_tractor = _ackermann_like(T_tractor, float(np.arctan2(T_tractor[1, 0], T_tractor[0, 0])), sign * chord, axle_x)
         return dataclasses.replace(init, T_tractor=T_tractor, scale_chord=(chord, sigma))
 

@@ -22,7 +22,10 @@ class RansacConfig:
     pixel noise / focal). ``confidence``, ``min_iterations``, ``max_iterations``, ``batch_size``:
     adaptive sample count (hypotheses are drawn and scored in batches). ``min_inliers``: fewer
     gives ``NO_CONSENSUS``; so does a tractor motion with inliers below ``min_inlier_fraction`` of
-    the correspondences (a planar motion that fits a few of them: pitch over a bump, traffic). ``min_chord``: a tractor displacement below this is a standstill.
+    the correspondences (a planar motion that fits a few of them: pitch over a bump, traffic).
+    ``max_attitude_change`` (radians; 0: planar only): where the planar motion explains less than
+    ``attitude_fraction`` of the correspondences, a pitch and roll change up to this is searched
+    (:mod:`ampc_vo.solvers.attitude`: the body pitches over bumps and under braking). ``min_chord``: a tractor displacement below this is a standstill.
     ``standstill_parallax``: median angle between the two bearings of a correspondence below
     which nothing moved (a planar truck cannot rotate in place). ``min_camera_axle_offset``:
     cameras closer than this to the axle in x give no scale (DESIGN 2.1).
@@ -56,6 +59,8 @@ class RansacConfig:
     batch_size: int = 32
     min_inliers: int = 8
     min_inlier_fraction: float = 0.0
+    max_attitude_change: float = 0.0
+    attitude_fraction: float = 0.6
     min_chord: float = 0.05
     max_chord: float = 20.0
     standstill_parallax: float = 0.003
@@ -165,6 +170,7 @@ class TractorMotionEstimate:
     chord_sigma: float = float("nan")
     chord_sign: float = 1.0
     rms_residual: float = float("nan")
+    attitude: tuple[float, float] = (0.0, 0.0)  # pitch, roll change (radians) in T_i_j beyond the planar motion
 
     @property
     def ok(self) -> bool:

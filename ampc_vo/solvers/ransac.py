@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ampc_vo.geometry import make_pose
+from ampc_vo.solvers.attitude import attitude_motion, estimate_attitude_motion
 from ampc_vo.solvers.refine import refine_tractor, refine_tractor_batch, refine_trailer_yaw, sampson_residuals
 from ampc_vo.solvers.status import SolverStatus
 from ampc_vo.solvers.tractor import ackermann_motion, tractor_motion_2pt_batch, tractor_yaw_1pt_batch
@@ -127,6 +128,48 @@ def estimate_tractor_motion(
     total = sum(len(g) for g in groups)
     if total < max(2, config.min_inliers):
         return TractorMotionEstimate(SolverStatus.TOO_FEW_POINTS, inlier_masks=empty_masks)
+    planar = _estimate_planar(groups, empty_masks, axle_x, config, chord_prior, rng, moving, direction)
+    if config.max_attitude_change <= 0.0 or planar.status in (SolverStatus.STANDSTILL, SolverStatus.TOO_FEW_POINTS):
+        return planar
+    if moving:
+        groups = [group.subset(parallax(group) >= config.standstill_parallax) for group in groups]
+    return _with_attitude(groups, planar, axle_x, config, chord_prior, direction)
+
+
+def _with_attitude(groups: Sequence[Group], planar: TractorMotionEstimate, axle_x: float, config: RansacConfig,
+                   chord_prior: float | None, direction: float | None) -> TractorMotionEstimate:
+    """The planar estimate, or where it explains less than ``attitude_fraction`` of the
+    correspondences, a motion with a pitch and roll change (:mod:`ampc_vo.solvers.attitude`) if that
+    explains clearly more (``_ATTITUDE_GAIN`` times the inliers). Its chord is not taken from the
+    tracks (the attitude change and the chord trade off): ``SCALE_UNOBSERVABLE`` with the prior's
+    chord, as in straight driving."""
+    total = sum(len(group) for group in groups)
+    if total == 0 or planar.num_inliers >= config.attitude_fraction * total:
+        return planar
+    known = chord_prior is not None and np.isfinite(chord_prior) and chord_prior != 0.0
+    measured = planar.status in (SolverStatus.OK, SolverStatus.SCALE_UNOBSERVABLE)
+    sign = direction if direction is not None else planar.chord_sign if measured or not known else float(np.sign(chord_prior))
+    chord = sign * (abs(float(chord_prior)) if known else max(abs(planar.chord) if np.isfinite(planar.chord) else 0.0, 1.0))
+    seeds = [(planar.yaw_change if np.isfinite(planar.yaw_change) else 0.0, chord)]
+    if np.isfinite(planar.yaw_change) and planar.yaw_change != 0.0:
+        seeds.append((0.0, chord))
+    found = estimate_attitude_motion(groups, seeds, axle_x, config.sampson_threshold, config.max_attitude_change, fix_chord=True,
+                                     iterations=config.refine_iterations)
+    if found is None or np.sum(found.inliers) < max(_least_inliers(groups, config), _ATTITUDE_GAIN * planar.num_inliers):
+        return planar
+    logger.debug("attitude change in a pair: pitch %.2f deg, roll %.2f deg, %d of %d inliers (planar: %d)", np.degrees(found.pitch),
+                 np.degrees(found.roll), int(np.sum(found.inliers)), total, planar.num_inliers)
+    T_i_j = make_pose(*attitude_motion(found.yaw_change, found.chord, found.pitch, found.roll, axle_x)) if known else None
+    return TractorMotionEstimate(
+        SolverStatus.SCALE_UNOBSERVABLE, found.yaw_change, found.chord if known else float("nan"), T_i_j, _split(found.inliers, groups),
+        int(np.sum(found.inliers)), planar.num_hypotheses, found.yaw_sigma, float("inf"), sign, float("nan"), (found.pitch, found.roll),
+    )
+
+
+def _estimate_planar(groups: Sequence[Group], empty_masks: list[np.ndarray], axle_x: float, config: RansacConfig, chord_prior: float | None,
+                     rng: np.random.Generator, moving: bool, direction: float | None) -> TractorMotionEstimate:
+    """The planar motion (``R = Rz(phi)``) of :func:`estimate_tractor_motion`."""
+    total = sum(len(g) for g in groups)
     if moving:
         groups = [group.subset(parallax(group) >= config.standstill_parallax) for group in groups]
         total = sum(len(g) for g in groups)
@@ -178,6 +221,9 @@ def estimate_tractor_motion(
     T_i_j = make_pose(*ackermann_motion(refined_yaw, refined_chord, axle_x))
     sign = 1.0 if refined_chord >= 0 else -1.0
     return TractorMotionEstimate(SolverStatus.OK, refined_yaw, refined_chord, T_i_j, masks, count, drawn, yaw_sigma, chord_sigma, sign, rms)
+
+
+_ATTITUDE_GAIN = 1.25  # an attitude motion replaces the planar one when it explains this many times its inliers
 
 
 def _least_inliers(groups: Sequence[Group], config: RansacConfig) -> float:

@@ -119,3 +119,16 @@ def test_tracks_on_the_trailer_box_are_left_out_of_the_tractor_motion() -> None:
     assert yaw == pytest.approx(-5.0, abs=0.2) and forward < -0.5, results
     status, yaw, forward = results["no box"]
     assert status is MotionStatus.STANDSTILL or abs(yaw + 5.0) > 1.0, results  # what the box's tracks did without it
+
+
+def test_rebuilding_a_motion_with_another_chord_keeps_its_attitude_change() -> None:
+    """The chord fusions rebuild the Ackermann motion from (yaw, chord): a pitch and roll change
+    found over a bump (ampc_vo.solvers.attitude) must survive it."""
+    from ampc_vo.backend.motion_init import _ackermann_like
+    from ampc_vo.solvers.attitude import attitude_motion
+
+    pitched = make_pose(*attitude_motion(0.03, 1.8, np.radians(1.0), np.radians(-0.4), -0.3))
+    rebuilt = _ackermann_like(pitched, 0.03, 2.2, -0.3)
+    np.testing.assert_allclose(rebuilt[:3, :3], pitched[:3, :3], atol=1e-12)
+    np.testing.assert_allclose(rebuilt[:3, 3], make_pose(*attitude_motion(0.03, 2.2, 0.0, 0.0, -0.3))[:3, 3], atol=1e-12)
+    np.testing.assert_allclose(_ackermann_like(None, 0.03, 2.2, -0.3), make_pose(*attitude_motion(0.03, 2.2, 0.0, 0.0, -0.3)), atol=1e-12)
