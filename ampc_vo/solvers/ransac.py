@@ -142,14 +142,16 @@ def _with_attitude(groups: Sequence[Group], planar: TractorMotionEstimate, axle_
     correspondences, a motion with a pitch and roll change (:mod:`ampc_vo.solvers.attitude`) if that
     explains clearly more (``_ATTITUDE_GAIN`` times the inliers). Its chord is not taken from the
     tracks (the attitude change and the chord trade off): ``SCALE_UNOBSERVABLE`` with the prior's
-    chord, as in straight driving."""
+    chord, as in straight driving; without a prior of at least ``min_chord`` nothing is searched."""
     total = sum(len(group) for group in groups)
     if total == 0 or planar.num_inliers >= config.attitude_fraction * total:
         return planar
-    known = chord_prior is not None and np.isfinite(chord_prior) and chord_prior != 0.0
+    known = chord_prior is not None and np.isfinite(chord_prior) and abs(chord_prior) >= config.min_chord
+    if not known:  # a truck predicted at rest: a fixed chord near zero fits any still tracks (traffic, its own body)
+        return planar
     measured = planar.status in (SolverStatus.OK, SolverStatus.SCALE_UNOBSERVABLE)
-    sign = direction if direction is not None else planar.chord_sign if measured or not known else float(np.sign(chord_prior))
-    chord = sign * (abs(float(chord_prior)) if known else max(abs(planar.chord) if np.isfinite(planar.chord) else 0.0, 1.0))
+    sign = direction if direction is not None else planar.chord_sign if measured else float(np.sign(chord_prior))
+    chord = sign * abs(float(chord_prior))
     seeds = [(planar.yaw_change if np.isfinite(planar.yaw_change) else 0.0, chord)]
     if np.isfinite(planar.yaw_change) and planar.yaw_change != 0.0:
         seeds.append((0.0, chord))
@@ -159,9 +161,9 @@ def _with_attitude(groups: Sequence[Group], planar: TractorMotionEstimate, axle_
         return planar
     logger.debug("attitude change in a pair: pitch %.2f deg, roll %.2f deg, %d of %d inliers (planar: %d)", np.degrees(found.pitch),
                  np.degrees(found.roll), int(np.sum(found.inliers)), total, planar.num_inliers)
-    T_i_j = make_pose(*attitude_motion(found.yaw_change, found.chord, found.pitch, found.roll, axle_x)) if known else None
+    T_i_j = make_pose(*attitude_motion(found.yaw_change, found.chord, found.pitch, found.roll, axle_x))
     return TractorMotionEstimate(
-        SolverStatus.SCALE_UNOBSERVABLE, found.yaw_change, found.chord if known else float("nan"), T_i_j, _split(found.inliers, groups),
+        SolverStatus.SCALE_UNOBSERVABLE, found.yaw_change, found.chord, T_i_j, _split(found.inliers, groups),
         int(np.sum(found.inliers)), planar.num_hypotheses, found.yaw_sigma, float("inf"), sign, float("nan"), (found.pitch, found.roll),
     )
 

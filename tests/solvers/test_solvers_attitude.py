@@ -99,3 +99,14 @@ def test_the_search_refines_all_four_parameters_when_the_chord_is_free() -> None
     assert abs(found.chord - chord) < 0.15 and np.degrees(abs(found.pitch - pitch)) < 0.05 and np.degrees(abs(found.roll - roll)) < 0.05
     assert found.inliers.mean() > 0.95
     assert estimate_attitude_motion(groups, [], AXLE_X, 2.0 / FOCAL_PX, np.radians(2.0)) is None
+
+
+def test_no_attitude_search_for_a_truck_predicted_at_rest() -> None:
+    """A chord fixed near zero fits any still tracks (traffic, the truck's own body) with some
+    pitch: with a prior below ``min_chord`` the planar estimate stands."""
+    rng = np.random.default_rng(9)
+    groups = _correspondences(rng, make_pose(*attitude_motion(0.0, 2.0, np.radians(1.0), 0.0, AXLE_X)))
+    config = RansacConfig(sampson_threshold=2.0 / FOCAL_PX, max_attitude_change=np.radians(2.0))
+    at_rest = estimate_tractor_motion(groups, AXLE_X, config, chord_prior=0.001)
+    assert at_rest.attitude == (0.0, 0.0)
+    assert estimate_tractor_motion(groups, AXLE_X, config, chord_prior=2.0).attitude != (0.0, 0.0)
