@@ -102,11 +102,15 @@ def _with_chord_length(T_i_j: np.ndarray, chord: float) -> np.ndarray:
     return T
 
 
+_REVERSING_M = 0.01  # a body's origin moved backwards by more than this: reversing (less: at rest, forward by default)
+
+
 def _velocity_of(motion: np.ndarray, dt: float) -> tuple[float, float]:
     """``(yaw rate, signed speed)`` of a body's ``motion`` (``T_i_j``) over ``dt`` seconds: the speed
-    is negative when the body's origin moved backwards in its own frame (reversing)."""
+    is negative when the body's origin moved backwards in its own frame (reversing); a body at rest
+    (the smoother's few millimetres either way) counts as forward."""
     speed = float(np.linalg.norm(motion[:2, 3])) / dt
-    return yaw_of(motion) / dt, speed if motion[0, 3] >= 0.0 else -speed
+    return yaw_of(motion) / dt, -speed if motion[0, 3] < -_REVERSING_M else speed
 
 
 class OdometryPipeline:

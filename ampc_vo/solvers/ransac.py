@@ -316,11 +316,14 @@ def _scale_unobservable(
     sign = 1.0 if chord >= 0 else -1.0
     known = chord_prior is not None and np.isfinite(chord_prior)
     fixed = sign * (abs(float(chord_prior)) if known else max(abs(chord), 1.0))
+    # the tracks are scored along the hypothesis' direction of travel: a prior near zero (a truck
+    # predicted at rest that moves off) would make every track with parallax an outlier
+    scored_chord = fixed if abs(fixed) >= config.min_chord else sign * max(abs(chord), 1.0)
     yaw_change, _, covariance, rms = refine_tractor(
-        groups, yaw_change, fixed, axle_x, config.refine_iterations, fix_chord=True,
+        groups, yaw_change, scored_chord, axle_x, config.refine_iterations, fix_chord=True,
         robust_threshold=config.sampson_threshold, robust_rounds=config.refine_rounds,
     )
-    _, scored = _score(groups, *ackermann_motion(np.array([yaw_change]), np.array([fixed]), axle_x), config.sampson_threshold, check_top=1)
+    _, scored = _score(groups, *ackermann_motion(np.array([yaw_change]), np.array([scored_chord]), axle_x), config.sampson_threshold, check_top=1)
     if np.sum(scored[0]) < _least_inliers(groups, config):
         return TractorMotionEstimate(SolverStatus.NO_CONSENSUS, inlier_masks=[np.zeros(g.size, bool) for g in groups], num_hypotheses=drawn)
     yaw_sigma = float(np.sqrt(covariance[0, 0])) if np.isfinite(covariance[0, 0]) else float("nan")

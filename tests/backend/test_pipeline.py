@@ -228,6 +228,7 @@ def test_the_constant_velocity_prediction_keeps_the_direction_of_travel() -> Non
     yaw_rate, speed = _velocity_of(backwards, 0.2)
     assert speed == pytest.approx(-6.0) and yaw_rate == pytest.approx(yaw / 0.2)
     assert _velocity_of(np.linalg.inv(backwards), 0.2)[1] == pytest.approx(6.0)
+    assert _velocity_of(make_pose(np.eye(3), np.array([-0.003, 0.0, 0.0])), 0.2)[1] > 0.0  # at rest: forward
     for chord in (-0.5, 0.5):
         scaled = _with_chord_length(backwards, chord)
         assert np.linalg.norm(scaled[:3, 3]) == pytest.approx(0.5) and np.sign(scaled[0, 3]) == np.sign(chord)

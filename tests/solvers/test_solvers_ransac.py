@@ -241,3 +241,16 @@ def test_a_motion_that_explains_few_correspondences_is_no_consensus(rig: Rig) ->
         assert np.rad2deg(abs(loose.yaw_change - problem.yaw_change)) < 0.3
         strict = estimate_tractor_motion(problem.groups("tractor"), problem.tractor_axle_x, RansacConfig(min_inlier_fraction=0.25))
         assert strict.status is SolverStatus.NO_CONSENSUS and strict.T_i_j is None
+
+
+def test_a_truck_predicted_at_rest_that_moves_off_straight_keeps_its_tracks(rig: Rig) -> None:
+    """Straight driving leaves the chord unobservable and the prior fills it; a prior near zero (the
+    truck was at rest) must not score the tracks as if the truck stood still: the motion stays
+    scale-unobservable with most tracks as inliers instead of no consensus."""
+    rng = np.random.default_rng(38)
+    problem = make_two_view_problem(rng, rig=rig, **{**DESIGN_2_3, "chord": 0.8, "yaw_change": 0.0})
+    config = RansacConfig(min_inlier_fraction=0.25)
+    estimate = estimate_tractor_motion(problem.groups("tractor"), problem.tractor_axle_x, config, chord_prior=0.001)
+    assert estimate.status is SolverStatus.SCALE_UNOBSERVABLE
+    assert estimate.num_inliers >= 0.8 * np.sum(problem.on("tractor")[0].inliers)
+    assert estimate.chord == pytest.approx(0.001)
