@@ -21,7 +21,7 @@ import numpy as np
 
 from ampc_vo.config import VoConfig
 from ampc_vo.epipolar import gec_sampson
-from ampc_vo.geometry import make_pose, rays_hit_box, rot_z
+from ampc_vo.geometry import make_pose, rays_hit_box, rot_z, yaw_of
 from ampc_vo.scale.ground import GroundScaleOptions, ground_plane_chord
 from ampc_vo.observations import FrameObservations, match_tracks
 from ampc_vo.rig import BodyBox, Camera, Rig
@@ -165,7 +165,7 @@ def _ackermann_like(T_like: np.ndarray | None, yaw_change: float, chord: float, 
     (pitch, roll) of ``T_like`` kept: ``R = Rz(phi) Rz(yaw of T_like)^T R_like``."""
     rotation, translation = ackermann_motion(yaw_change, chord, axle_x)
     if T_like is not None:
-        rotation = rotation @ rot_z(-float(np.arctan2(T_like[1, 0], T_like[0, 0]))) @ T_like[:3, :3]
+        rotation = rotation @ rot_z(-yaw_of(T_like)) @ T_like[:3, :3]
     return make_pose(rotation, translation)
 
 
@@ -320,9 +320,8 @@ class MotionInitializer:
 
     def _with_chord(self, T_i_j: np.ndarray, chord: float) -> np.ndarray:
         """The Ackermann motion (DESIGN 2 (NH)) of ``T_i_j``'s yaw change and direction with the axle chord ``chord``."""
-        yaw_change = float(np.arctan2(T_i_j[1, 0], T_i_j[0, 0]))
         direction = 1.0 if _chord_of(T_i_j, self.rig.axle_x("tractor")) >= 0.0 else -1.0
-        return _ackermann_like(T_i_j, yaw_change, direction * chord, self.rig.axle_x("tractor"))
+        return _ackermann_like(T_i_j, yaw_of(T_i_j), direction * chord, self.rig.axle_x("tractor"))
 
     def _fuse_chord(self, estimate: TractorMotionEstimate, predicted_chord: float, prediction_sigma: float) -> np.ndarray:
         """Inverse-variance fusion of the RANSAC chord with the constant-velocity prediction; the yaw
@@ -443,8 +442,6 @@ class MotionInitializer:
             chord, sigma = float(weights @ [chord, other_chord] / weights.sum()), float(1.0 / np.sqrt(weights.sum()))
         T_tractor = init.T_tractor
         if init.tractor_status is MotionStatus.SCALE_UNOBSERVABLE:  # a better initial value than the predicted chord
-            axle_x = self.rig.axle_x("tractor")
-            sign = 1.0 if _chord_of(T_tractor, axle_x) >= 0.0 else -1.0
-            T_tractor = _ackermann_like(T_tractor, float(np.arctan2(T_tractor[1, 0], T_tractor[0, 0])), sign * chord, axle_x)
+            T_tractor = self._with_chord(T_tractor, chord)
         return dataclasses.replace(init, T_tractor=T_tractor, scale_chord=(chord, sigma))
 

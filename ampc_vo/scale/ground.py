@@ -104,7 +104,7 @@ from enum import Enum
 
 import numpy as np
 
-from ampc_vo.geometry import check_bearings, rot_z
+from ampc_vo.geometry import check_bearings, rot_z, yaw_of
 from ampc_vo.rig import Camera
 
 logger = logging.getLogger(__name__)
@@ -622,7 +622,7 @@ def ground_plane_chord(
         return GroundChord(GroundScaleStatus.SMALL_BASELINE)
     # the path's curvature is the yaw change over the signed chord (negative: reversing)
     travel = 1.0 if axle_chord_direction(T_i_j, axle_x)[0] >= 0.0 else -1.0
-    per_camera = _within_lane(per_camera, travel * float(np.arctan2(T_i_j[1, 0], T_i_j[0, 0])), options)
+    per_camera = _within_lane(per_camera, travel * yaw_of(T_i_j), options)
     chords = np.concatenate([points.chord[points.candidate] for points in per_camera])
     sigmas = np.concatenate([points.sigma[points.candidate] for points in per_camera])
     plane = fit_road_plane(per_camera, sigmas, options) if options.fit_plane else None

@@ -112,7 +112,6 @@ def estimate_attitude_motion(
         covariance = covariances[0]
         values = residual_batch(params[free][None])[0]
         mask = (np.abs(values) < threshold) & _cheiral(groups, params, axle_x)
-    values = residual_batch(params[free][None])[0]
     if fix_chord:
         params[1] = chord
     return AttitudeMotion(float(params[0]), float(params[1]), float(params[2]), float(params[3]), covariance, mask,

@@ -128,11 +128,13 @@ def estimate_tractor_motion(
     total = sum(len(g) for g in groups)
     if total < max(2, config.min_inliers):
         return TractorMotionEstimate(SolverStatus.TOO_FEW_POINTS, inlier_masks=empty_masks)
-    planar = _estimate_planar(groups, empty_masks, axle_x, config, chord_prior, rng, moving, direction)
-    if config.max_attitude_change <= 0.0 or planar.status in (SolverStatus.STANDSTILL, SolverStatus.TOO_FEW_POINTS):
-        return planar
     if moving:
         groups = [group.subset(parallax(group) >= config.standstill_parallax) for group in groups]
+        if sum(len(g) for g in groups) < max(2, config.min_inliers):
+            return TractorMotionEstimate(SolverStatus.TOO_FEW_POINTS, inlier_masks=empty_masks)
+    planar = _estimate_planar(groups, empty_masks, axle_x, config, chord_prior, rng, moving, direction)
+    if config.max_attitude_change <= 0.0 or planar.status is SolverStatus.STANDSTILL:
+        return planar
     return _with_attitude(groups, planar, axle_x, config, chord_prior, direction)
 
 
@@ -170,14 +172,10 @@ def _with_attitude(groups: Sequence[Group], planar: TractorMotionEstimate, axle_
 
 def _estimate_planar(groups: Sequence[Group], empty_masks: list[np.ndarray], axle_x: float, config: RansacConfig, chord_prior: float | None,
                      rng: np.random.Generator, moving: bool, direction: float | None) -> TractorMotionEstimate:
-    """The planar motion (``R = Rz(phi)``) of :func:`estimate_tractor_motion`."""
+    """The planar motion (``R = Rz(phi)``) of :func:`estimate_tractor_motion` (``groups`` already
+    without the still correspondences when ``moving``)."""
     total = sum(len(g) for g in groups)
-    if moving:
-        groups = [group.subset(parallax(group) >= config.standstill_parallax) for group in groups]
-        total = sum(len(g) for g in groups)
-        if total < max(2, config.min_inliers):
-            return TractorMotionEstimate(SolverStatus.TOO_FEW_POINTS, inlier_masks=empty_masks)
-    elif median_parallax(groups) < config.standstill_parallax:
+    if not moving and median_parallax(groups) < config.standstill_parallax:
         every = [g.full_mask(np.ones(len(g), dtype=bool)) for g in groups]
         return TractorMotionEstimate(SolverStatus.STANDSTILL, 0.0, 0.0, np.eye(4), every, total)
     bearings_i, bearings_j, centers = _stack(groups)
