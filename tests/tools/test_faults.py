@@ -39,6 +39,7 @@ from ampc_vo.tools.processes import run_helpers, wait_gone
 ROOT = Path(__file__).resolve().parents[2]
 CI_ROUTE = ROOT / "configs" / "sim" / "ci_short.yaml"
 KITTI_CLIP = Path(__file__).resolve().parents[3] / "shared" / "data" / "kitti-clip"
+needs_clip = pytest.mark.skipif(not KITTI_CLIP.is_dir(), reason=f"KITTI clip not found at {KITTI_CLIP}")
 
 
 def _script(name: str):
@@ -221,6 +222,7 @@ def test_3_timestamps_in_milliseconds_or_nanoseconds_are_refused(bearings, tmp_p
     assert not (tmp_path / "out").exists()
 
 
+@needs_clip
 def test_3_kitti_times_and_measurement_timestamps_in_milliseconds_are_refused(bearings, tmp_path):
     from tests.io.test_kitti import link_clip
 
@@ -338,6 +340,7 @@ def test_5_a_principal_point_far_from_the_centre_is_a_warning_that_says_what_it_
     assert "every bearing of this camera is tilted by it" in caplog.text
 
 
+@needs_clip
 @pytest.mark.parametrize("factor, message", [(-1.0, "P1 puts the right camera 0.537 m to the left of the left camera (sign of P1[0, 3] flipped?"),
                                              (1000.0, "stereo baseline 537.2 m is outside [0.02, 5.0] m")])
 def test_5_a_kitti_baseline_with_its_sign_flipped_or_in_millimetres_is_refused(tmp_path, capsys, factor, message):
@@ -530,6 +533,7 @@ def test_10_a_straight_start_without_scale_publishes_no_made_up_speed(bearings, 
 
 
 # ---------------------------------------------------------------------- 11. incomplete KITTI folders
+@needs_clip
 @pytest.mark.parametrize("drop, message", [("calib.txt", "looks like a KITTI odometry folder but has no calib.txt"),
                                            ("image_r", "looks like a KITTI odometry folder but has no image_r or image_1/")])
 def test_11_a_kitti_folder_without_calib_or_right_images_says_so(tmp_path, capsys, drop, message):
