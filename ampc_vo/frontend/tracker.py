@@ -7,14 +7,17 @@ Per camera, :class:`CameraTracker` runs, for every new image:
 2. KLT tracking (``cv2.calcOpticalFlowPyrLK``, image pyramids) of the previous features with a
    forward-backward check: a track survives if tracking it back lands within ``fb_threshold_px``
    of where it started (fisheye: it must also stay inside the valid image circle);
-3. a sudden-jump test: if most tracks fail at once the camera re-initialises with new ids;
+3. a sudden-jump test: if most tracks fail at once the camera re-initialises with new ids; then
+   the aperture test (``flow_support``): a track whose window is an edge running along its image
+   motion (gradient energy along the motion below ``aperture_ratio`` of the largest) is dropped,
+   as KLT cannot measure the motion's length there and the track slides along the edge;
 4. per-camera outlier rejection on **bearings** (so it works for pinhole and fisheye alike): RANSAC
    over essential matrices from 8 bearing pairs, scored with the Sampson residual on the sphere
    (equal to ``ampc_vo.epipolar.gec_sampson`` with the camera centre at the origin, i.e. paper
    eq. (1) for a single central camera);
 5. grid-based replenishment: GFTT corners (``cv2.goodFeaturesToTrack`` on a 2x downscaled image,
    with a mask around existing features, only over the cells that need features) fill the grid
-   cells that hold fewer than their share of features; new features get new ids, unique per camera
+   cells that hold fewer than their share of features (corners only: structure tensor eigenvalue ratio ``corner_ratio`` at least ``aperture_ratio``); new features get new ids, unique per camera
    and never reused; crowded cells are thinned (oldest tracks kept) so features stay spread;
 6. un-projection of the pixels to unit bearings with the rig's ``Camera.unproject``.
 
@@ -46,6 +49,7 @@ class TrackingReport:
 
     tracked: int = 0                 # tracks carried over from the previous frame
     lost: int = 0                    # tracks failing KLT / forward-backward / border tests
+    edges: int = 0                   # tracks dropped by the aperture test (their patch became an edge)
     rejected: int = 0                # tracks removed by the epipolar RANSAC
     detected: int = 0                # new features
     reinitialised: str = ""          # reason if the camera re-initialised this frame ("blank", "jump", ...)
@@ -146,6 +150,50 @@ def track_forward_backward(
     good = (status_forward.ravel() == 1) & (status_backward.ravel() == 1) & (fb_error < config.fb_threshold_px) & inside
     good &= np.all(np.isfinite(forward), axis=1)
     return forward, good
+
+
+def corner_ratio(gray: np.ndarray, pixels: np.ndarray, window: int) -> np.ndarray:
+    """Per pixel (N, 2), the structure tensor of the ``window`` x ``window`` patch around it
+    (Scharr gradients, bilinear at sub-pixel positions): its smaller eigenvalue over its larger,
+    in [0, 1]; 0 for a flat patch. Near 0 is an edge (the aperture problem: KLT cannot measure the
+    motion along it), near 1 a corner or isotropic texture (Shi and Tomasi, CVPR 1994)."""
+    if len(pixels) == 0:
+        return np.zeros(0)
+    gxx, gxy, gyy = structure_tensors(gray, pixels, window)
+    half_trace = 0.5 * (gxx + gyy)
+    spread = np.sqrt(np.maximum(half_trace**2 - (gxx * gyy - gxy**2), 0.0))
+    return np.where(half_trace > 0, (half_trace - spread) / np.maximum(half_trace + spread, 1e-12), 0.0)
+
+
+def structure_tensors(gray: np.ndarray, pixels: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel (N, 2), the structure tensor ``(gxx, gxy, gyy)`` (each (N,)) of the ``window`` x
+    ``window`` patch around it (Scharr gradients, bilinear at sub-pixel positions)."""
+    image = np.asarray(gray, np.float32)
+    gradients = cv2.merge([cv2.Scharr(image, cv2.CV_32F, 1, 0), cv2.Scharr(image, cv2.CV_32F, 0, 1)])
+    offsets = np.arange(window, dtype=np.float32) - np.float32((window - 1) / 2)
+    offset_y, offset_x = np.meshgrid(offsets, offsets, indexing="ij")
+    points = np.asarray(pixels, np.float32)
+    map_x = points[:, 0:1] + offset_x.ravel()[None]
+    map_y = points[:, 1:2] + offset_y.ravel()[None]
+    patch = cv2.remap(gradients, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+    return (patch[..., 0] ** 2).sum(1), (patch[..., 0] * patch[..., 1]).sum(1), (patch[..., 1] ** 2).sum(1)
+
+
+def flow_support(gray: np.ndarray, pixels: np.ndarray, displacement: np.ndarray, window: int) -> np.ndarray:
+    """Per pixel (N, 2) with its image motion ``displacement`` (N, 2): the gradient energy of its
+    ``window`` patch along the motion over the largest along any direction (``d^T G d / |d|^2 /
+    lambda_max`` of the structure tensor G), in [0, 1]; 1 where the motion is below a pixel (no
+    direction to test). Near 0: the patch is an edge running along the motion (aperture problem:
+    KLT cannot measure the motion's length there and the track slides along the edge)."""
+    if len(pixels) == 0:
+        return np.zeros(0)
+    gxx, gxy, gyy = structure_tensors(gray, pixels, window)
+    half_trace = 0.5 * (gxx + gyy)
+    largest = half_trace + np.sqrt(np.maximum(half_trace**2 - (gxx * gyy - gxy**2), 0.0))
+    dx, dy = np.asarray(displacement, float).T
+    squared = dx**2 + dy**2
+    along = (gxx * dx**2 + 2 * gxy * dx * dy + gyy * dy**2) / np.maximum(squared, 1e-12)
+    return np.where(squared >= 1.0, along / np.maximum(largest, 1e-12), 1.0)
 
 
 def grid_cells(pixels: np.ndarray, image_size: tuple[int, int], rows: int, cols: int) -> np.ndarray:
@@ -335,6 +383,12 @@ class CameraTracker:
                 self.reset(f"sudden jump: only {int(good.sum())} of {len(self._pixels)} tracks survived")
                 report.tracked = 0
             else:
+                if config.aperture_ratio > 0:  # tracks on an edge along their motion would slide along it
+                    corner = np.zeros(len(tracked), bool)
+                    support = flow_support(gray, tracked[good], tracked[good] - self._pixels[good], config.lk_window)
+                    corner[good] = support >= config.aperture_ratio
+                    report.edges = int((good & ~corner).sum())
+                    good &= corner
                 pixels, ids = tracked[good], self._ids[good]
                 previous_bearings = self._bearings[good]
         report.timings_ms["track"] = (time.perf_counter() - clock) * 1e3
@@ -442,6 +496,8 @@ class CameraTracker:
         border = config.border_px
         inside = (corners[:, 0] >= border) & (corners[:, 0] <= width - 1 - border) & (corners[:, 1] >= border) & (corners[:, 1] <= height - 1 - border)
         corners = corners[inside]
+        if config.aperture_ratio > 0:  # the aperture test: no new features on edges
+            corners = corners[corner_ratio(gray, corners, config.lk_window) >= config.aperture_ratio]
         corner_cells = grid_cells(corners, self.image_size, config.grid_rows, config.grid_cols)
         keep = select_per_cell(corner_cells, quota)
         keep = keep[np.argsort(occupied[corner_cells[keep]] > 0, kind="stable")]  # empty cells first

@@ -11,7 +11,7 @@ import pytest
 
 from ampc_vo.epipolar import gec_sampson
 from ampc_vo.errors import ConfigError, DatasetError
-from ampc_vo.frontend.tracker import CameraTracker, essential_from_bearings, essential_sampson, epipolar_inliers, grid_cells, motion_from_essential, select_per_cell, track_forward_backward
+from ampc_vo.frontend.tracker import CameraTracker, corner_ratio, essential_from_bearings, flow_support, essential_sampson, epipolar_inliers, grid_cells, motion_from_essential, select_per_cell, track_forward_backward
 from ampc_vo.frontend.multi_camera import MultiCameraFrontend
 from ampc_vo.config import TrackerConfig, stereo_config_from_dict, tracker_config_from_dict
 from ampc_vo.geometry import triangulate_midpoint
@@ -94,6 +94,62 @@ def test_tracker_output_has_no_wrong_tracks_after_forward_backward_and_epipolar_
     # invisible to the epipolar check, so a few at the patch border survive (2.3 % with OpenCV 5.1).
     assert np.mean(error > 1.0) < 0.03
     assert tracker.last_report.lost + tracker.last_report.rejected > 20
+
+
+def lane_marking_image(shift_along: float = 0.0) -> np.ndarray:
+    """A bright stripe along the image's diagonal (a lane marking seen in perspective) and blobs
+    (texture with corners) on a plain road, all moved by ``shift_along`` px along the stripe
+    (evaluated exactly at the shifted coordinates)."""
+    rows, columns = np.mgrid[0:HEIGHT, 0:WIDTH].astype(float)
+    direction = np.array([1.0, 1.0]) / np.sqrt(2.0)
+    columns, rows = columns - shift_along * direction[0], rows - shift_along * direction[1]
+    across = (columns - rows) / np.sqrt(2.0)                              # signed distance to the diagonal
+    image = 100.0 + 60.0 / (1.0 + np.exp(-(6.0 - np.abs(across - 150.0))))  # the stripe, 12 px wide, soft edges
+    rng = np.random.default_rng(5)
+    for x, y in rng.uniform([40, 40], [WIDTH - 40, HEIGHT - 40], size=(15, 2)):
+        image += 50.0 * np.exp(-((columns - x) ** 2 + (rows - y) ** 2) / (2 * 3.0**2))
+    for frequency, phase in zip(rng.uniform(-0.3, 0.3, size=(30, 2)), rng.uniform(0, 2 * np.pi, 30)):
+        image += 0.6 * np.cos(frequency[0] * columns + frequency[1] * rows + phase)   # faint asphalt grain
+    return np.clip(image, 0, 255).round().astype(np.uint8)
+
+
+def test_corner_ratio_tells_edges_from_corners_and_flat_patches():
+    image = np.full((120, 120), 80, np.uint8)
+    image[40:120, 60:120] = 200                     # a corner at (60, 40), edges below and to the right
+    ratio = corner_ratio(image, np.array([[60.0, 40.0], [60.0, 90.0], [95.0, 40.0], [20.0, 20.0]]), 15)
+    assert ratio[0] > 0.3                           # corner: both directions measured
+    assert ratio[1] < 0.01 and ratio[2] < 0.01      # vertical and horizontal edges
+    assert ratio[3] == 0.0                          # flat patch
+    assert corner_ratio(image, np.zeros((0, 2)), 15).shape == (0,)
+
+
+def test_flow_support_is_small_only_for_an_edge_along_the_motion():
+    image = np.full((120, 120), 80, np.uint8)
+    image[:, 60:] = 200                             # a vertical edge at x = 60
+    pixels = np.array([[60.0, 60.0]] * 3)
+    support = flow_support(image, pixels, np.array([[0.0, 3.0], [3.0, 0.0], [0.3, 0.2]]), 15)
+    assert support[0] < 0.01                        # motion along the edge: unmeasurable
+    assert support[1] > 0.99                        # motion across it: fully measured
+    assert support[2] == 1.0                        # below a pixel: no direction, not tested
+
+
+def test_aperture_test_keeps_no_features_on_edges():
+    """Detected features are corners, and a track on an edge along its motion is dropped (the faint
+    grain makes GFTT accept points on the stripe's edges when the test is off)."""
+    previous, current = lane_marking_image(0.0), lane_marking_image(3.0)
+    for ratio in (0.0, TrackerConfig().aperture_ratio):
+        tracker = CameraTracker(pinhole(), TrackerConfig(aperture_ratio=ratio))
+        first = tracker.track(previous)
+        second = tracker.track(current)
+        assert len(first) > 150 and len(second) > 150
+        first_ratio = corner_ratio(previous, first.pixels, tracker.config.lk_window)
+        index_first, index_second = match_tracks(first, second)
+        support = flow_support(current, second.pixels[index_second], second.pixels[index_second] - first.pixels[index_first],
+                               tracker.config.lk_window)
+        if ratio == 0.0:
+            assert np.sum(first_ratio < 0.02) > 10 and np.sum(support < 0.02) > 10  # edge points along the stripe
+        else:
+            assert first_ratio.min() >= ratio and support.min() >= ratio
 
 
 def test_epipolar_ransac_on_bearings_rejects_outliers_for_wide_fisheye_rays():
