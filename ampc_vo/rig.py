@@ -142,7 +142,10 @@ class Camera:
 
     # ------------------------------------------------------------------ distortion
     def _distort(self, normalized: np.ndarray) -> np.ndarray:
-        """Pinhole: undistorted normalised coordinates (N, 2) -> distorted (N, 2)."""
+        """Pinhole: undistorted normalised coordinates (N, 2) -> distorted (N, 2) (the same array
+        without distortion coefficients)."""
+        if not np.any(self.distortion):
+            return normalized
         k1, k2, p1, p2, k3 = self._coefficients(5)
         x, y = normalized[:, 0], normalized[:, 1]
         r2 = x * x + y * y

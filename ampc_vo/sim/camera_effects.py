@@ -26,6 +26,7 @@ An image of camera ``c`` captured at ``t_c`` (``camera_timing``) is formed as:
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Callable, Sequence
@@ -102,15 +103,19 @@ def blur_offsets(samples: int, exposure_s: float) -> np.ndarray:
 def camera_velocity(pose_at: Callable[[np.ndarray], np.ndarray], time: float, step: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
     """Linear and angular velocity ``(v, omega)`` of the camera at ``time`` in its own frame (central
     difference of ``T_world_camera``): ``T(time)^-1 T(time + dt) ~ exp(dt [v, omega])``."""
-    before, after = pose_at(np.array([time - step, time + step]))
+    return _pose_and_velocity(pose_at, time, step)[1:]
+
+
+def _pose_and_velocity(pose_at: Callable[[np.ndarray], np.ndarray], time: float, step: float = 0.005) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(T_world_camera at time, v, omega)`` from one call of ``pose_at`` (:func:`camera_velocity`)."""
+    middle, before, after = pose_at(np.array([time, time - step, time + step]))
     delta = np.linalg.solve(before, after)
     rotation = delta[:3, :3]
     angle = math.acos(float(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
     axis = np.array([rotation[2, 1] - rotation[1, 2], rotation[0, 2] - rotation[2, 0], rotation[1, 0] - rotation[0, 1]])
     omega = axis * (0.5 * angle / math.sin(angle) if angle > 1e-9 else 0.5) / (2 * step)
-    middle = pose_at(np.array([time]))[0]
     velocity = middle[:3, :3].T @ (after[:3, 3] - before[:3, 3]) / (2 * step)
-    return velocity, omega
+    return middle, velocity, omega
 
 
 @dataclass(frozen=True)
@@ -140,6 +145,17 @@ def _points_at(points: np.ndarray, motion: np.ndarray, dt: np.ndarray) -> np.nda
     return points - dt[:, None] * motion
 
 
+@functools.lru_cache(maxsize=4)
+def _pixel_grids(width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel columns and rows (H, W) float32 and both divided by ``_GRID_STEP`` (the motion grid's
+    coordinates); cached per image size, not to be written to."""
+    columns, rows = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
+    grids = (columns, rows, columns / np.float32(_GRID_STEP), rows / np.float32(_GRID_STEP))
+    for grid in grids:
+        grid.flags.writeable = False
+    return grids
+
+
 WARP_MARGIN_PX = 16  # the warped image is rendered this much larger on every side (its sources near the edges)
 
 
@@ -162,16 +178,15 @@ def form_image(camera: Camera, render_with_depth: Callable[[np.ndarray, float, i
     exposure_s = settings.exposure_s * exposure_relative
     readout = camera.readout_time
     middle = capture_time + 0.5 * readout
-    T_middle = pose_at(np.array([middle]))[0]
     samples = settings.motion_blur_samples if exposure_s > 0 else 1
     if readout <= 0 and samples <= 1:
-        radiance = render_with_depth(T_middle, middle, 0)[0]
+        radiance = render_with_depth(pose_at(np.array([middle]))[0], middle, 0)[0]
         return expose(radiance, amplification, settings, rng, vignetting), ImageFormation(middle, readout, 1, exposure_s, amplification, 0.0)
     margin = WARP_MARGIN_PX
+    T_middle, velocity, omega = _pose_and_velocity(pose_at, middle)
     radiance, depth, rays = render_with_depth(T_middle, middle, margin)
     radiance = radiance.astype(np.float32, copy=False)  # cv2.remap interpolates float64 at 1/32 px steps, float32 exactly
     height, width = camera.height, camera.width
-    velocity, omega = camera_velocity(pose_at, middle)
     # Exact motion field on a grid of pixels: rolling-shutter target and image velocity.
     grid_v, grid_u = np.mgrid[0:height:_GRID_STEP, 0:width:_GRID_STEP]
     distance = depth[grid_v + margin, grid_u + margin].astype(np.float64).ravel()
@@ -193,8 +208,7 @@ def form_image(camera: Camera, render_with_depth: Callable[[np.ndarray, float, i
     image_velocity = np.where((valid_ahead & valid_behind)[:, None], (ahead - behind) / (2 * step), 0.0)
     shape = grid_u.shape
 
-    columns, rows = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
-    coarse_u, coarse_v = columns / np.float32(_GRID_STEP), rows / np.float32(_GRID_STEP)
+    columns, rows, coarse_u, coarse_v = _pixel_grids(width, height)
 
     # Shift and image velocity as one 4-channel field (cv2.remap is faster on 4 channels than on 2),
     # bilinear between the grid points (pixel k * step).
@@ -206,18 +220,22 @@ def form_image(camera: Camera, render_with_depth: Callable[[np.ndarray, float, i
     for _ in range(2):
         at = cv2.remap(fields, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         map_u, map_v = columns - at[..., 0], rows - at[..., 1]
-    velocity_at = cv2.remap(fields, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[..., 2:]
     blur_px = float(np.max(np.hypot(image_velocity[:, 0], image_velocity[:, 1]))) * exposure_s if len(image_velocity) else 0.0
     samples = int(np.clip(math.ceil(blur_px), 1, samples))  # about one sample per pixel of blur
     offsets = blur_offsets(samples, exposure_s)
     image = np.zeros((height, width), np.float32)
+    if not np.any(offsets):  # no blur: the rolling-shutter warp only
+        image += cv2.remap(radiance, map_u + np.float32(margin), map_v + np.float32(margin), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        offsets = ()
+    else:
+        velocity_at = cv2.remap(fields, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[..., 2:]
     for offset in offsets:  # the point seen at q at row time + offset came from p - velocity * offset
         image += cv2.remap(radiance, map_u + np.float32(margin) - velocity_at[..., 0] * np.float32(offset),
                            map_v + np.float32(margin) - velocity_at[..., 1] * np.float32(offset),
                            cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    image /= np.float32(len(offsets))
+    image /= np.float32(max(len(offsets), 1))
     max_shift = float(np.max(np.hypot(target[:, 0] - source[:, 0], target[:, 1] - source[:, 1]))) if len(target) else 0.0
-    return expose(image, amplification, settings, rng, vignetting), ImageFormation(middle, readout, len(offsets), exposure_s, amplification, max_shift)
+    return expose(image, amplification, settings, rng, vignetting), ImageFormation(middle, readout, max(len(offsets), 1), exposure_s, amplification, max_shift)
 
 
 def mean_brightness(images: Sequence[np.ndarray]) -> float:

@@ -13,7 +13,9 @@ the strips of a road continue each other without seams.
 Speed (``scripts/benchmark_render.py``): pixels are stored tile-major (16x16 tiles). Each quad is
 tested against the tiles its projected outline's bounding box covers (quads reaching behind a
 pinhole lens are clipped at a near plane first), refined by its bounding sphere against each tile's
-cone of rays and by which side of its plane a tile's rays can reach; quads are processed near to far
+cone of rays, by which side of its plane a tile's rays can reach and by the four faces of the cone of
+rays through its corners (a tile inside all four sees the quad with every ray: only the depth is
+tested there, the rectangle test only on the edge tiles); quads are processed near to far
 and skip tiles already filled with nearer surfaces; quads on a few tiles only (far, thin) are
 ray-tested in batches of 64 (one numpy pass each). Large quads are split into pieces and collinear
 road strips merged; beyond ``detail_distance_m`` blocks of 8 x 8 pieces are tested as one (level of
@@ -268,6 +270,21 @@ def _times(vectors: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     if matrix.ndim == 1:
         return vectors[:, 0] * matrix[0] + vectors[:, 1] * matrix[1] + vectors[:, 2] * matrix[2]
     return vectors[:, 0:1] * matrix[0] + vectors[:, 1:2] * matrix[1] + vectors[:, 2:3] * matrix[2]
+
+
+def _quad_cone_facets(corners: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """Unit inward normals (Q, 4, 3) float32 of the faces of the cone of rays from the camera centre
+    through each quad (corners (Q, 4, 3) in order around the quad, centre (Q, 3); camera frame): a
+    ray ``d`` meets the quad (at a positive distance) exactly when ``normal . d >= 0`` for all four
+    faces. A face whose two corners are nearly in line with the camera centre gets a zero normal
+    (no test)."""
+    following = np.roll(corners, -1, axis=1)
+    normals = np.cross(corners, following)
+    length = np.linalg.norm(normals, axis=2, keepdims=True)
+    usable = length > 1e-9 * np.linalg.norm(corners, axis=2, keepdims=True) * np.linalg.norm(following, axis=2, keepdims=True)
+    normals = np.where(usable, normals / np.maximum(length, 1e-300), 0.0)
+    normals *= np.where(np.einsum("qfk,qk->qf", normals, centre) < 0, -1.0, 1.0)[..., None]
+    return normals.astype(np.float32)
 
 
 def _dot_rows(first: np.ndarray, second: np.ndarray) -> np.ndarray:
@@ -533,22 +550,34 @@ def _paint_markings(surface: np.ndarray, along: np.ndarray, across: np.ndarray, 
 
 
 _OUTLINE_SAMPLES = 8  # points per quad edge for the projected bounding box
+_FACET_MARGIN = 1e-4  # rad: a tile is culled or interior to a quad's ray cone only by this much
 
 
 @dataclass(frozen=True)
 class VisibilityBuffer:
     """Result of the depth pass, per pixel (H, W): ray distance (inf: sky), quad index (-1: sky),
-    surface coordinates (a, b) in the hit quad's parent (m), |cos| of the incidence angle."""
+    texture coordinates, |cos| of the incidence angle; surface coordinates on request
+    (:meth:`surface_coordinates`)."""
 
     depth: np.ndarray
     quad_id: np.ndarray
-    coord_a: np.ndarray
-    coord_b: np.ndarray
     texture_s: np.ndarray  # texture coordinates (m) = the quad's texture map applied to (a, b)
     texture_t: np.ndarray
     cos_incidence: np.ndarray
     quads: "PreparedQuads"
     shade: np.ndarray | None = None  # (H, W) brightness factor of the relief's slopes (None: none in view)
+    surface_frame: np.ndarray | None = None  # (Q, 8) camera-frame u, c_a, v, c_b: a = t (d . u) + c_a, b likewise
+    rays_planes: np.ndarray | None = None    # (3, H, W) the pixels' unit rays d
+
+    def surface_coordinates(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Surface coordinates ``(a, b)`` (m, in the hit quad's parent) float32 (K,) of the hit pixels
+        ``pixels`` (K,) (flat image indices): ``a = t (d . u) + c_a`` with the ray ``d`` and distance ``t``."""
+        frame = np.take(np.ascontiguousarray(self.surface_frame.T, dtype=np.float32), self.quad_id.ravel()[pixels], axis=1)  # (8, K)
+        t = self.depth.ravel()[pixels]
+        d = np.take(self.rays_planes.reshape(3, -1), pixels, axis=1)
+        coord_a = t * (d[0] * frame[0] + d[1] * frame[1] + d[2] * frame[2]) + frame[3]
+        coord_b = t * (d[0] * frame[4] + d[1] * frame[5] + d[2] * frame[6]) + frame[7]
+        return coord_a, coord_b
 
 
 _RELIEF_RANGE_M = 60.0      # beyond, a bump of a few cm is below a pixel: the quad's plane is kept
@@ -594,6 +623,7 @@ def relief_hits(bumps: Sequence[Any], camera_position: np.ndarray, rays_world: n
     start = camera_position[:2] + t_start[:, None] * rays_world[:, :2]
     segment = (t_stop - t_start)[:, None] * rays_world[:, :2]
     near = np.zeros(len(pixels), bool)
+    near_each = []  # per bump the pixels whose bracket passes it
     segment_length = np.sqrt(segment[:, 0] ** 2 + segment[:, 1] ** 2)
     for bump in bumps:  # distance of the bump's centre from the bracket's xy segment
         reach = _bump_reach(bump)
@@ -602,17 +632,25 @@ def relief_hits(bumps: Sequence[Any], camera_position: np.ndarray, rays_world: n
         maybe = np.flatnonzero(relative[:, 0] ** 2 + relative[:, 1] ** 2 <= (reach + segment_length) ** 2)
         relative, part = relative[maybe], segment[maybe]
         along = np.clip(np.einsum("kj,kj->k", relative, part) / np.maximum(np.einsum("kj,kj->k", part, part), 1e-12), 0.0, 1.0)
-        near[maybe] |= np.linalg.norm(relative - along[:, None] * part, axis=1) <= reach
+        near_each.append(maybe[np.linalg.norm(relative - along[:, None] * part, axis=1) <= reach])
+        near[near_each[-1]] = True
     chosen = np.flatnonzero(usable & near)
     if chosen.size == 0:
         return None
     c, d, k, t0 = camera_position, rays_world[chosen], approach[chosen], depth[chosen]
+    row_of = np.full(len(pixels), -1)
+    row_of[chosen] = np.arange(len(chosen))
+    rows_each = [row_of[close][row_of[close] >= 0] for close in near_each]  # rows of `chosen` near each bump
 
-    def residual(t: np.ndarray) -> np.ndarray:  # f(t) for t (K,) or (K, S)
+    def residual(t: np.ndarray) -> np.ndarray:  # f(t) for t (K,) or (K, S); each bump evaluated near its rays only (zero elsewhere)
         shape = t.shape
         t = t.reshape(len(chosen), -1)
-        xy = c[:2] + t[..., None] * d[:, None, :2]
-        return (k[:, None] * (t - t0[:, None]) - relief_height(bumps, xy.reshape(-1, 2)).reshape(t.shape)).reshape(shape)
+        height = np.zeros(t.shape)
+        for bump, rows in zip(bumps, rows_each):
+            if rows.size:
+                xy = c[:2] + t[rows, :, None] * d[rows, None, :2]
+                height[rows] += bump.height_at(xy.reshape(-1, 2)).reshape(len(rows), -1)
+        return (k[:, None] * (t - t0[:, None]) - height).reshape(shape)
 
     fractions = np.linspace(0.0, 1.0, _RELIEF_MARCH_STEPS + 1)
     samples = t_start[chosen, None] + fractions[None, :] * (t_stop - t_start)[chosen, None]            # (K, S)
@@ -740,15 +778,18 @@ class Renderer:
     # ------------------------------------------------------------------ visibility
     def _candidate_tiles(self, camera: Camera, rays: CameraRays, quads: PreparedQuads,
                          centre: np.ndarray, origin_c: np.ndarray, normal_c: np.ndarray,
-                         outline_c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                         outline_c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Quads that may be visible and, per quad, the tiles its rays may hit (conservative):
-        ``(candidates (C,), tiles (N,), starts (C + 1,))``, the tiles of candidate ``k`` being
-        ``tiles[starts[k]:starts[k + 1]]`` in increasing order.
+        ``(candidates (C,), tiles (N,), starts (C + 1,), edges (C,))``, the tiles of candidate ``k``
+        being ``tiles[starts[k]:starts[k + 1]]``: first its ``edges[k]`` edge tiles, then the
+        interior tiles whose every ray meets the quad (each part in increasing order).
 
-        Three tests, all conservative: for quads entirely in front of the lens, the image bounding
+        Four tests, all conservative: for quads entirely in front of the lens, the image bounding
         box of their projected outline; the quad's bounding sphere against each tile's ray cone;
-        and the quad's plane must be reachable from the tile (some ray points towards its side).
-        The last two are evaluated on the tiles of the bounding box only (quad-tile pairs).
+        the quad's plane must be reachable from the tile (some ray points towards its side); and
+        the tile's ray cone must reach inside each face of the cone of rays through the quad's
+        corners (inside all four: an interior tile). The last three are evaluated on the tiles of
+        the bounding box only (quad-tile pairs).
         """
         distance = np.linalg.norm(centre, axis=1)
         inside = distance <= quads.radius * 1.0001
@@ -763,7 +804,7 @@ class Renderer:
         in_view &= inside | (quads.width * quads.height >= _SUBPIXEL_FRACTION * pixel_solid_angle * safe_distance**2)
         candidates = np.flatnonzero(in_view)
         if candidates.size == 0:
-            return candidates, np.zeros(0, np.int64), np.zeros(1, np.int64)
+            return candidates, np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int64)
         # Tile-grid bounding box of the projected outline when all of it is safely in front.
         outline = outline_c[candidates]  # (C, S, 3)
         flat = outline.reshape(-1, 3)
@@ -822,7 +863,7 @@ class Renderer:
         nonempty = ((box[:, 0] <= box[:, 1]) & (box[:, 2] <= box[:, 3])) | wide
         candidates, box, wide = candidates[nonempty], box[nonempty], wide[nonempty]
         if candidates.size == 0:
-            return candidates, np.zeros(0, np.int64), np.zeros(1, np.int64)
+            return candidates, np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int64)
         # Quad-tile pairs of the boxes (quads seeing behind the lens: every tile, kept if in the box or beyond 90 deg).
         pair_box = box.copy()
         pair_box[wide] = (0, tiles_x - 1, 0, tiles_y - 1)
@@ -844,9 +885,23 @@ class Renderer:
         toward = _dot_rows(facing, tile_axis)
         keep &= toward > -rays.tile_sin_half[tile]
         owner, tile = owner[keep], tile[keep]
+        # Cone faces: the rays that meet a quad form the cone over its four corners. A tile whose ray
+        # cone lies wholly outside one face cannot see the quad; one wholly inside all four faces
+        # sees it with every ray (its rays need no rectangle test, only the depth).
+        facets = _quad_cone_facets(outline_c[candidates, ::_OUTLINE_SAMPLES], centre[candidates])
+        facets[inside[candidates]] = 0.0  # camera within the bounding sphere: no test
+        tile_axis, sin_half = rays.tile_axis_f32[tile], rays.tile_sin_half[tile]
+        facing = np.stack([_dot_rows(facets[owner, face], tile_axis) for face in range(4)])  # (4, N)
+        keep = facing.min(axis=0) >= -sin_half - np.float32(_FACET_MARGIN)
+        interior = facing[:, keep].min(axis=0) >= sin_half[keep] + np.float32(_FACET_MARGIN)
+        owner, tile = owner[keep], tile[keep]
+        # Per quad its edge tiles first, then its interior ones (each part in increasing order).
+        order = np.lexsort((tile, interior, owner))
+        owner, tile = owner[order], tile[order]
         counts = np.bincount(owner, minlength=candidates.size)
+        edges = np.bincount(owner[~interior[order]], minlength=candidates.size)
         seen = counts > 0
-        return candidates[seen], tile, np.concatenate([[0], np.cumsum(counts[seen])])
+        return candidates[seen], tile, np.concatenate([[0], np.cumsum(counts[seen])]), edges[seen]
 
     def depth_pass(self, camera: Camera, T_world_camera: np.ndarray, extra: PreparedQuads | None = None) -> VisibilityBuffer:
         """Nearest hit per pixel (ray casting with a depth test), as a :class:`VisibilityBuffer`."""
@@ -872,12 +927,13 @@ class Renderer:
             o = origin_c[:, None, :]
             outline = np.concatenate([o + along_u, o + w * u_c[:, None, :] + along_v,
                                       o + h * v_c[:, None, :] + w * u_c[:, None, :] - along_u, o + h * v_c[:, None, :] - along_v], axis=1)
-            candidates, candidate_tiles, tile_starts = self._candidate_tiles(camera, rays, quads, centre, origin_c, n_c, outline)
-            tile_starts = tile_starts.tolist()
+            candidates, candidate_tiles, tile_starts, edge_tiles = self._candidate_tiles(camera, rays, quads, centre, origin_c, n_c, outline)
+            tile_starts, edge_tiles = tile_starts.tolist(), edge_tiles.tolist()
             nearest = np.linalg.norm(centre[candidates], axis=1) - quads.radius[candidates]
             order = np.argsort(nearest)
             axes_c = np.stack([n_c, u_c, v_c], axis=2).astype(np.float32)  # (Q, 3, 3): columns n, u, v
             frames = np.ascontiguousarray(np.transpose(axes_c, (0, 2, 1)))  # (Q, 3, 3): rows n, u, v
+            normal_rows, u_rows, v_rows = frames[:, 0:1], frames[:, 1:2], frames[:, 2:3]  # (Q, 1, 3) each: n, u, v
             plane = np.einsum("qk,qkj->qj", origin_c, np.stack([n_c, u_c, v_c], axis=2))  # o.n, o.u, o.v
             plane_n = plane[:, 0].astype(np.float32)
             half_w, half_h = (0.5 * quads.width).astype(np.float32), (0.5 * quads.height).astype(np.float32)
@@ -887,9 +943,11 @@ class Renderer:
             batch_quads: list[int] = []
             batch_tiles: list[np.ndarray] = []
 
-            def keep_nearer(tiles: np.ndarray, t: np.ndarray, ids: np.ndarray | np.int32, nearer: np.ndarray) -> None:
-                """Write the hits ``t`` (and their quad ids) where ``nearer`` into the tiles' buffers."""
-                current = depth[tiles]
+            def keep_nearer(tiles: np.ndarray, t: np.ndarray, ids: np.ndarray | np.int32, nearer: np.ndarray,
+                            current: np.ndarray | None = None) -> None:
+                """Write the hits ``t`` (and their quad ids) where ``nearer`` into the tiles' buffers
+                (``current``: their depths, ``depth[tiles]``, if already gathered)."""
+                current = depth[tiles] if current is None else current
                 np.copyto(current, t, where=nearer)
                 depth[tiles] = current
                 tile_far[tiles] = current.max(axis=1)
@@ -923,32 +981,40 @@ class Renderer:
                 winner_id = np.maximum.reduceat(np.where(winner, pair_quad[:, None].astype(np.int32), np.int32(-1)), starts, axis=0)
                 keep_nearer(pair_tile[starts], nearest_t, winner_id, winner_id >= 0)
 
-            for k in order:
-                q = int(candidates[k])
-                tiles = candidate_tiles[tile_starts[k]:tile_starts[k + 1]]
-                tiles = tiles[tile_far[tiles] > nearest[k]]
-                if tiles.size == 0:
-                    continue
-                tested_quads += 1
-                tested_pixels += tiles.size * tile_pixels
-                if tiles.size <= _BATCH_MAX_TILES:
-                    # Small quads (far away, thin): tested in batches, in order; a batch sees the
-                    # depths of the quads before it (occlusion culling between batches only).
-                    batch_quads.append(q)
-                    batch_tiles.append(tiles)
-                    if len(batch_quads) >= _BATCH_QUADS:
-                        test_batch()
-                    continue
-                test_batch()
-                # ray components along the quad's n, u, v in one pass (cv2.transform: rows of frames[q])
-                along = cv2.transform(rays.tile_rays[tiles].reshape(-1, 1, 3), frames[q]).reshape(tiles.size, tile_pixels, 3)
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    t = plane_n[q] / along[..., 0]
-                hit = (t > _MIN_HIT_DISTANCE) & (t < depth[tiles])
-                hit &= np.abs(t * along[..., 1] - centre_u[q]) <= half_w[q]
-                hit &= np.abs(t * along[..., 2] - centre_v[q]) <= half_h[q]
-                if hit.any():
-                    keep_nearer(tiles, t, np.int32(q), hit)
+            with np.errstate(divide="ignore", invalid="ignore"):  # rays parallel to a quad's plane
+                for k in order:
+                    q = int(candidates[k])
+                    tiles = candidate_tiles[tile_starts[k]:tile_starts[k + 1]]
+                    unoccluded = tile_far[tiles] > nearest[k]
+                    tiles = tiles[unoccluded]
+                    if tiles.size == 0:
+                        continue
+                    tested_quads += 1
+                    tested_pixels += tiles.size * tile_pixels
+                    if tiles.size <= _BATCH_MAX_TILES:
+                        # Small quads (far away, thin): tested in batches, in order; a batch sees the
+                        # depths of the quads before it (occlusion culling between batches only).
+                        batch_quads.append(q)
+                        batch_tiles.append(tiles)
+                        if len(batch_quads) >= _BATCH_QUADS:
+                            test_batch()
+                        continue
+                    test_batch()
+                    # Ray components along the quad's normal (cv2.transform by its row); on the edge
+                    # tiles (listed first) also along u and v for the rectangle test.
+                    tile_rays = rays.tile_rays[tiles]
+                    t = plane_n[q] / cv2.transform(tile_rays.reshape(-1, 1, 3), normal_rows[q]).reshape(tiles.size, tile_pixels)
+                    current = depth[tiles]
+                    hit = (t > _MIN_HIT_DISTANCE) & (t < current)
+                    edges = int(np.count_nonzero(unoccluded[:edge_tiles[k]]))
+                    if edges:
+                        edge_rays = tile_rays[:edges].reshape(-1, 1, 3)
+                        t_edge, hit_edge = t[:edges], hit[:edges]
+                        for row, middle, half in ((u_rows[q], centre_u[q], half_w[q]), (v_rows[q], centre_v[q], half_h[q])):
+                            along = cv2.transform(edge_rays, row).reshape(edges, tile_pixels)  # one row: contiguous output
+                            hit_edge &= np.abs(t_edge * along - middle) <= half
+                    if hit.any():
+                        keep_nearer(tiles, t, np.int32(q), hit, current)
             test_batch()
             self.last_stats = {"candidates": int(candidates.size), "quads_tested": tested_quads, "ray_tests": tested_pixels}
         shape = (camera.height, camera.width)
@@ -960,29 +1026,30 @@ class Renderer:
             depth_image.ravel()[relief.pixels] = relief.depth
             shade = np.ones(shape, np.float32)
             shade.ravel()[relief.pixels] = relief.shade
-        # Surface coordinates and incidence of the winning quad, per pixel (one gather of its constants).
-        # Surface and texture coordinates and incidence of the winning quad, per pixel, on whole-image
-        # arrays (sky pixels use quad 0 at distance 0 and are ignored by the shading).
+        # Texture coordinates and incidence of the winning quad, per pixel, on whole-image arrays (sky
+        # pixels use quad 0 at distance 0 and are ignored by the shading), from one gather of its
+        # constants: the texture map composed with the surface coordinates is affine in the hit
+        # point t d, s = t (d . S) + c_s with S = M00 u + M01 v.
         hit_image = id_image >= 0
         q = np.maximum(id_image, 0).astype(np.intp)
         t = np.where(hit_image, depth_image, np.float32(0.0))
         ray_x, ray_y, ray_z = rays.rays_planes
+        surface_frame = np.zeros((max(len(quads), 1), 8))
+        table = np.zeros((max(len(quads), 1), 11))
         if len(quads):
-            table = np.concatenate([axes_c.reshape(-1, 9), plane.astype(np.float32), quads.offset_a[:, None].astype(np.float32),
-                                    quads.offset_b[:, None].astype(np.float32), quads.texture_map.reshape(-1, 6).astype(np.float32)], axis=1)
-        else:
-            table = np.zeros((1, 20), np.float32)
-        column = np.take(np.ascontiguousarray(table.T), q, axis=1)  # (20, H, W): one gather, contiguous planes
-        # axes_c columns are n, u, v: row-major flattening gives (n0 u0 v0 n1 u1 v1 n2 u2 v2).
-        d_n = ray_x * column[0] + ray_y * column[3] + ray_z * column[6]
-        d_u = ray_x * column[1] + ray_y * column[4] + ray_z * column[7]
-        d_v = ray_x * column[2] + ray_y * column[5] + ray_z * column[8]
-        coord_a = t * d_u - column[10] + column[12]
-        coord_b = t * d_v - column[11] + column[13]
-        texture_s = column[14] * coord_a + column[15] * coord_b + column[16]
-        texture_t = column[17] * coord_a + column[18] * coord_b + column[19]
-        cos_incidence = np.abs(d_n)
-        return VisibilityBuffer(depth_image, id_image, coord_a, coord_b, texture_s, texture_t, cos_incidence, quads, shade)
+            u_c, v_c, n_c = (axes_c[:, :, column].astype(np.float64) for column in (1, 2, 0))
+            const_a, const_b = quads.offset_a - plane[:, 1], quads.offset_b - plane[:, 2]  # a = t (d . u) + const_a
+            surface_frame = np.concatenate([u_c, const_a[:, None], v_c, const_b[:, None]], axis=1)
+            texture_map = quads.texture_map  # (Q, 2, 3)
+            for row in range(2):
+                table[:, 4 * row:4 * row + 3] = texture_map[:, row, 0:1] * u_c + texture_map[:, row, 1:2] * v_c
+                table[:, 4 * row + 3] = texture_map[:, row, 0] * const_a + texture_map[:, row, 1] * const_b + texture_map[:, row, 2]
+            table[:, 8:] = n_c
+        column = np.take(np.ascontiguousarray(table.T.astype(np.float32)), q, axis=1)  # (11, H, W): contiguous planes
+        texture_s = t * (ray_x * column[0] + ray_y * column[1] + ray_z * column[2]) + column[3]
+        texture_t = t * (ray_x * column[4] + ray_y * column[5] + ray_z * column[6]) + column[7]
+        cos_incidence = np.abs(ray_x * column[8] + ray_y * column[9] + ray_z * column[10])
+        return VisibilityBuffer(depth_image, id_image, texture_s, texture_t, cos_incidence, quads, shade, surface_frame, rays.rays_planes)
 
     def _relief_in_view(self, camera: Camera, T_world_camera: np.ndarray, depth_image: np.ndarray,
                         id_image: np.ndarray, quads: PreparedQuads) -> ReliefHits | None:
@@ -1002,7 +1069,7 @@ class Renderer:
         pixels = pixels[quads.horizontal[flat_ids[pixels]]]
         if pixels.size == 0:
             return None
-        rays_world = (R_world_camera @ self.rays_of(camera).rays_planes.reshape(3, -1)[:, pixels].astype(np.float64)).T
+        rays_world = (R_world_camera @ np.take(self.rays_of(camera).rays_planes.reshape(3, -1), pixels, axis=1).astype(np.float64)).T
         return relief_hits(bumps, camera_position, rays_world, depth_image.ravel()[pixels].astype(np.float64),
                            quads.normal[flat_ids[pixels]], pixels, self.options.shadow_darkness)
 
@@ -1058,10 +1125,10 @@ class Renderer:
             # Full-image arrays (sky pixels use quad 0, depth inf, and are overwritten below): no mask gathers.
             q = np.maximum(visible.quad_id, 0).astype(np.intp)
             t = visible.depth
-            # Per-quad constants, gathered per pixel in one call (contiguous planes).
+            # Per-quad constants, gathered per pixel in one call (contiguous planes); the road's only on its pixels.
             constants = np.take(np.stack([atlas.size / quads.texture_scale, atlas.level_x[quads.texture_index] + (atlas.pad - 0.5),
-                                          quads.gain, quads.road, quads.road_along, quads.road_across, quads.road_width, quads.horizontal]).astype(np.float32), q, axis=1)
-            texels_per_m, texture_x, gain, road_flag, road_along, road_across, road_width, horizontal = constants
+                                          quads.gain]).astype(np.float32), q, axis=1)
+            texels_per_m, texture_x, gain = constants
             incidence = np.maximum(visible.cos_incidence, np.float32(0.02))
             incidence = np.sqrt(incidence) if options.incidence_exponent == 0.5 else incidence ** np.float32(options.incidence_exponent)
             pixel_m = t * rays.pixel_angle
@@ -1095,15 +1162,17 @@ class Renderer:
             surface *= gain
             if visible.shade is not None:  # slopes of bumps and potholes
                 surface *= visible.shade
-            road = np.flatnonzero(hit & (road_flag > 0))
+            road = np.flatnonzero(hit & quads.road[q]) if quads.road.any() else np.zeros(0, np.intp)
             if road.size:
-                along = visible.coord_a.ravel()[road] + road_along.ravel()[road]
-                surface.ravel()[road] = _paint_markings(surface.ravel()[road], along, visible.coord_b.ravel()[road] + road_across.ravel()[road],
-                                                        road_width.ravel()[road], pixel_m.ravel()[road], footprint_m.ravel()[road])
+                road_quads = q.ravel()[road]
+                coord_a, coord_b = visible.surface_coordinates(road)
+                surface.ravel()[road] = _paint_markings(surface.ravel()[road], coord_a + quads.road_along[road_quads].astype(np.float32),
+                                                        coord_b + quads.road_across[road_quads].astype(np.float32),
+                                                        quads.road_width[road_quads].astype(np.float32), pixel_m.ravel()[road], footprint_m.ravel()[road])
             if self.shadows is not None:  # horizontal quads: texture coordinates are world (x, y)
                 lit = self.shadows.sample(visible.texture_s, visible.texture_t)
                 shade = np.float32(options.shadow_darkness) + np.float32(1.0 - options.shadow_darkness) * lit
-                surface *= np.where(horizontal > 0, shade, np.float32(1.0))
+                surface *= np.where(quads.horizontal[q], shade, np.float32(1.0))
             image = surface
         sky = ~hit
         if sky.any():  # brighter towards the horizon

@@ -60,8 +60,10 @@ class Bump:
         across = relative @ np.array([-np.sin(self.direction), np.cos(self.direction)])
         u, w = 2.0 * along / self.length, 2.0 * across / self.width
         inside = (np.abs(u) < 1.0) & (np.abs(w) < 1.0)
-        # cos^2 taper across keeps the edges of a pothole smooth as well
-        return np.where(inside, self.height * 0.5 * (1.0 + np.cos(np.pi * u)) * np.cos(0.5 * np.pi * w) ** 2, 0.0)
+        # cos^2 taper across keeps the edges of a pothole smooth as well (evaluated inside only)
+        height = np.zeros(np.shape(u))
+        height[inside] = self.height * 0.5 * (1.0 + np.cos(np.pi * u[inside])) * np.cos(0.5 * np.pi * w[inside]) ** 2
+        return height
 
 
 def relief_height(bumps: "tuple[Bump, ...] | list[Bump]", xy: np.ndarray) -> np.ndarray:
