@@ -17,7 +17,8 @@ Per camera, :class:`CameraTracker` runs, for every new image:
    eq. (1) for a single central camera);
 5. grid-based replenishment: GFTT corners (``cv2.goodFeaturesToTrack`` on a 2x downscaled image,
    with a mask around existing features, only over the cells that need features) fill the grid
-   cells that hold fewer than their share of features (corners only: structure tensor eigenvalue ratio ``corner_ratio`` at least ``aperture_ratio``); new features get new ids, unique per camera
+   cells that hold fewer than their share of features (corners only: structure tensor eigenvalue
+   ratio ``corner_ratio`` at least ``aperture_ratio``); new features get new ids, unique per camera
    and never reused; crowded cells are thinned (oldest tracks kept) so features stay spread;
 6. un-projection of the pixels to unit bearings with the rig's ``Camera.unproject``.
 
@@ -152,24 +153,17 @@ def track_forward_backward(
     return forward, good
 
 
-def corner_ratio(gray: np.ndarray, pixels: np.ndarray, window: int) -> np.ndarray:
-    """Per pixel (N, 2), the structure tensor of the ``window`` x ``window`` patch around it
-    (Scharr gradients, bilinear at sub-pixel positions): its smaller eigenvalue over its larger,
-    in [0, 1]; 0 for a flat patch. Near 0 is an edge (the aperture problem: KLT cannot measure the
-    motion along it), near 1 a corner or isotropic texture (Shi and Tomasi, CVPR 1994)."""
-    if len(pixels) == 0:
-        return np.zeros(0)
-    gxx, gxy, gyy = structure_tensors(gray, pixels, window)
-    half_trace = 0.5 * (gxx + gyy)
-    spread = np.sqrt(np.maximum(half_trace**2 - (gxx * gyy - gxy**2), 0.0))
-    return np.where(half_trace > 0, (half_trace - spread) / np.maximum(half_trace + spread, 1e-12), 0.0)
-
-
-def structure_tensors(gray: np.ndarray, pixels: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per pixel (N, 2), the structure tensor ``(gxx, gxy, gyy)`` (each (N,)) of the ``window`` x
-    ``window`` patch around it (Scharr gradients, bilinear at sub-pixel positions)."""
+def image_gradients(gray: np.ndarray) -> np.ndarray:
+    """Scharr gradients (H, W, 2) float32 of a grey image: the input of :func:`corner_ratio` and
+    :func:`flow_support` (computed once per image)."""
     image = np.asarray(gray, np.float32)
-    gradients = cv2.merge([cv2.Scharr(image, cv2.CV_32F, 1, 0), cv2.Scharr(image, cv2.CV_32F, 0, 1)])
+    return cv2.merge([cv2.Scharr(image, cv2.CV_32F, 1, 0), cv2.Scharr(image, cv2.CV_32F, 0, 1)])
+
+
+def structure_tensors(gradients: np.ndarray, pixels: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel (N, 2), the structure tensor ``(gxx, gxy, gyy)`` (each (N,)) of the ``window`` x
+    ``window`` patch around it (``gradients`` of :func:`image_gradients`, bilinear at sub-pixel
+    positions)."""
     offsets = np.arange(window, dtype=np.float32) - np.float32((window - 1) / 2)
     offset_y, offset_x = np.meshgrid(offsets, offsets, indexing="ij")
     points = np.asarray(pixels, np.float32)
@@ -179,17 +173,37 @@ def structure_tensors(gray: np.ndarray, pixels: np.ndarray, window: int) -> tupl
     return (patch[..., 0] ** 2).sum(1), (patch[..., 0] * patch[..., 1]).sum(1), (patch[..., 1] ** 2).sum(1)
 
 
-def flow_support(gray: np.ndarray, pixels: np.ndarray, displacement: np.ndarray, window: int) -> np.ndarray:
-    """Per pixel (N, 2) with its image motion ``displacement`` (N, 2): the gradient energy of its
-    ``window`` patch along the motion over the largest along any direction (``d^T G d / |d|^2 /
-    lambda_max`` of the structure tensor G), in [0, 1]; 1 where the motion is below a pixel (no
-    direction to test). Near 0: the patch is an edge running along the motion (aperture problem:
-    KLT cannot measure the motion's length there and the track slides along the edge)."""
+def _eigenvalues(gxx: np.ndarray, gxy: np.ndarray, gyy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Smaller and larger eigenvalue of the symmetric 2x2 tensors ``[[gxx, gxy], [gxy, gyy]]``."""
+    half_trace = 0.5 * (gxx + gyy)
+    spread = np.sqrt(np.maximum(half_trace**2 - (gxx * gyy - gxy**2), 0.0))
+    return half_trace - spread, half_trace + spread
+
+
+def corner_ratio(gray: np.ndarray, pixels: np.ndarray, window: int, gradients: np.ndarray | None = None) -> np.ndarray:
+    """Per pixel (N, 2), the structure tensor of the ``window`` x ``window`` patch around it
+    (Scharr gradients, bilinear at sub-pixel positions; ``gradients``: :func:`image_gradients` of
+    ``gray`` if already computed): its smaller eigenvalue over its larger, in [0, 1]; 0 for a flat
+    patch. Near 0 is an edge (the aperture problem: KLT cannot measure the motion along it), near 1
+    a corner or isotropic texture (Shi and Tomasi, CVPR 1994)."""
     if len(pixels) == 0:
         return np.zeros(0)
-    gxx, gxy, gyy = structure_tensors(gray, pixels, window)
-    half_trace = 0.5 * (gxx + gyy)
-    largest = half_trace + np.sqrt(np.maximum(half_trace**2 - (gxx * gyy - gxy**2), 0.0))
+    smallest, largest = _eigenvalues(*structure_tensors(image_gradients(gray) if gradients is None else gradients, pixels, window))
+    return np.where(largest > 0, smallest / np.maximum(largest, 1e-12), 0.0)
+
+
+def flow_support(gray: np.ndarray, pixels: np.ndarray, displacement: np.ndarray, window: int,
+                 gradients: np.ndarray | None = None) -> np.ndarray:
+    """Per pixel (N, 2) with its image motion ``displacement`` (N, 2): the gradient energy of its
+    ``window`` patch along the motion over the largest along any direction (``d^T G d / |d|^2 /
+    lambda_max`` of the structure tensor G; ``gradients`` as in :func:`corner_ratio`), in [0, 1];
+    1 where the motion is below a pixel (no direction to test). Near 0: the patch is an edge
+    running along the motion (aperture problem: KLT cannot measure the motion's length there and
+    the track slides along the edge)."""
+    if len(pixels) == 0:
+        return np.zeros(0)
+    gxx, gxy, gyy = structure_tensors(image_gradients(gray) if gradients is None else gradients, pixels, window)
+    _, largest = _eigenvalues(gxx, gxy, gyy)
     dx, dy = np.asarray(displacement, float).T
     squared = dx**2 + dy**2
     along = (gxx * dx**2 + 2 * gxy * dx * dy + gyy * dy**2) / np.maximum(squared, 1e-12)
@@ -369,6 +383,7 @@ class CameraTracker:
             return CameraObservations.empty(self.camera.name)
 
         clock = time.perf_counter()
+        gradients = image_gradients(gray) if config.aperture_ratio > 0 else None  # the aperture test's, once per image
         pixels, ids = np.zeros((0, 2)), np.zeros(0, np.int64)
         if self.previous_image is not None and len(self._pixels):
             tracked, good = track_forward_backward(self.previous_image, gray, self._pixels, config, self.image_size)
@@ -383,9 +398,9 @@ class CameraTracker:
                 self.reset(f"sudden jump: only {int(good.sum())} of {len(self._pixels)} tracks survived")
                 report.tracked = 0
             else:
-                if config.aperture_ratio > 0:  # tracks on an edge along their motion would slide along it
+                if gradients is not None:  # tracks on an edge along their motion would slide along it
                     corner = np.zeros(len(tracked), bool)
-                    support = flow_support(gray, tracked[good], tracked[good] - self._pixels[good], config.lk_window)
+                    support = flow_support(gray, tracked[good], tracked[good] - self._pixels[good], config.lk_window, gradients)
                     corner[good] = support >= config.aperture_ratio
                     report.edges = int((good & ~corner).sum())
                     good &= corner
@@ -411,7 +426,7 @@ class CameraTracker:
 
         clock = time.perf_counter()
         if self._needs_features(pixels):
-            new_pixels = self._detect(gray, pixels)
+            new_pixels = self._detect(gray, pixels, gradients)
             report.detected = len(new_pixels)
             if len(new_pixels):
                 pixels = np.concatenate([pixels, new_pixels])
@@ -454,8 +469,9 @@ class CameraTracker:
             return True
         return self._empty_cells(pixels) > self._empty_cells_after_detection
 
-    def _detect(self, gray: np.ndarray, existing: np.ndarray) -> np.ndarray:
-        """GFTT corners that fill under-populated grid cells (grid-based replenishment)."""
+    def _detect(self, gray: np.ndarray, existing: np.ndarray, gradients: np.ndarray | None = None) -> np.ndarray:
+        """GFTT corners that fill under-populated grid cells (grid-based replenishment); with
+        ``gradients`` (:func:`image_gradients` of ``gray``) only corners passing the aperture test."""
         config = self.config
         cells = config.grid_rows * config.grid_cols
         per_cell = int(np.ceil(config.max_features / cells))
@@ -496,8 +512,8 @@ class CameraTracker:
         border = config.border_px
         inside = (corners[:, 0] >= border) & (corners[:, 0] <= width - 1 - border) & (corners[:, 1] >= border) & (corners[:, 1] <= height - 1 - border)
         corners = corners[inside]
-        if config.aperture_ratio > 0:  # the aperture test: no new features on edges
-            corners = corners[corner_ratio(gray, corners, config.lk_window) >= config.aperture_ratio]
+        if gradients is not None:  # the aperture test: no new features on edges
+            corners = corners[corner_ratio(gray, corners, config.lk_window, gradients) >= config.aperture_ratio]
         corner_cells = grid_cells(corners, self.image_size, config.grid_rows, config.grid_cols)
         keep = select_per_cell(corner_cells, quota)
         keep = keep[np.argsort(occupied[corner_cells[keep]] > 0, kind="stable")]  # empty cells first

@@ -100,14 +100,10 @@ def blur_offsets(samples: int, exposure_s: float) -> np.ndarray:
     return ((np.arange(samples) + 0.5) / samples - 0.5) * exposure_s
 
 
-def camera_velocity(pose_at: Callable[[np.ndarray], np.ndarray], time: float, step: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
-    """Linear and angular velocity ``(v, omega)`` of the camera at ``time`` in its own frame (central
-    difference of ``T_world_camera``): ``T(time)^-1 T(time + dt) ~ exp(dt [v, omega])``."""
-    return _pose_and_velocity(pose_at, time, step)[1:]
-
-
-def _pose_and_velocity(pose_at: Callable[[np.ndarray], np.ndarray], time: float, step: float = 0.005) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(T_world_camera at time, v, omega)`` from one call of ``pose_at`` (:func:`camera_velocity`)."""
+def camera_velocity(pose_at: Callable[[np.ndarray], np.ndarray], time: float, step: float = 0.005) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The camera's pose ``T_world_camera`` at ``time`` and its linear and angular velocity ``(v,
+    omega)`` in its own frame (central difference of ``T_world_camera``: ``T(time)^-1 T(time + dt)
+    ~ exp(dt [v, omega])``), from one call of ``pose_at``."""
     middle, before, after = pose_at(np.array([time, time - step, time + step]))
     delta = np.linalg.solve(before, after)
     rotation = delta[:3, :3]
@@ -183,7 +179,7 @@ def form_image(camera: Camera, render_with_depth: Callable[[np.ndarray, float, i
         radiance = render_with_depth(pose_at(np.array([middle]))[0], middle, 0)[0]
         return expose(radiance, amplification, settings, rng, vignetting), ImageFormation(middle, readout, 1, exposure_s, amplification, 0.0)
     margin = WARP_MARGIN_PX
-    T_middle, velocity, omega = _pose_and_velocity(pose_at, middle)
+    T_middle, velocity, omega = camera_velocity(pose_at, middle)
     radiance, depth, rays = render_with_depth(T_middle, middle, margin)
     radiance = radiance.astype(np.float32, copy=False)  # cv2.remap interpolates float64 at 1/32 px steps, float32 exactly
     height, width = camera.height, camera.width
@@ -223,19 +219,18 @@ def form_image(camera: Camera, render_with_depth: Callable[[np.ndarray, float, i
     blur_px = float(np.max(np.hypot(image_velocity[:, 0], image_velocity[:, 1]))) * exposure_s if len(image_velocity) else 0.0
     samples = int(np.clip(math.ceil(blur_px), 1, samples))  # about one sample per pixel of blur
     offsets = blur_offsets(samples, exposure_s)
-    image = np.zeros((height, width), np.float32)
-    if not np.any(offsets):  # no blur: the rolling-shutter warp only
-        image += cv2.remap(radiance, map_u + np.float32(margin), map_v + np.float32(margin), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        offsets = ()
-    else:
+    if np.any(offsets):
         velocity_at = cv2.remap(fields, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[..., 2:]
-    for offset in offsets:  # the point seen at q at row time + offset came from p - velocity * offset
-        image += cv2.remap(radiance, map_u + np.float32(margin) - velocity_at[..., 0] * np.float32(offset),
-                           map_v + np.float32(margin) - velocity_at[..., 1] * np.float32(offset),
-                           cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    image /= np.float32(max(len(offsets), 1))
+        image = np.zeros((height, width), np.float32)
+        for offset in offsets:  # the point seen at q at row time + offset came from p - velocity * offset
+            image += cv2.remap(radiance, map_u + np.float32(margin) - velocity_at[..., 0] * np.float32(offset),
+                               map_v + np.float32(margin) - velocity_at[..., 1] * np.float32(offset),
+                               cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        image /= np.float32(len(offsets))
+    else:  # no blur: the rolling-shutter warp only
+        image = cv2.remap(radiance, map_u + np.float32(margin), map_v + np.float32(margin), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     max_shift = float(np.max(np.hypot(target[:, 0] - source[:, 0], target[:, 1] - source[:, 1]))) if len(target) else 0.0
-    return expose(image, amplification, settings, rng, vignetting), ImageFormation(middle, readout, max(len(offsets), 1), exposure_s, amplification, max_shift)
+    return expose(image, amplification, settings, rng, vignetting), ImageFormation(middle, readout, len(offsets), exposure_s, amplification, max_shift)
 
 
 def mean_brightness(images: Sequence[np.ndarray]) -> float:
