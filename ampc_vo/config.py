@@ -288,6 +288,11 @@ class ScaleConfig:
     smooth_speed_sigma_mps2: float | None = 1.0
     wheel_speed: bool = False
     wheel_speed_sigma_m: float = 0.05
+    # the wheel odometry's scale as a variable calibrated online by the other metric sources
+    # (issue 15; tyre radius, wear, load and pressure: a per cent or two): its prior sigma at the
+    # first keyframe (None: the wheel is taken as exact) and its random walk per sqrt(km) driven
+    wheel_scale_sigma: float | None = 0.03
+    wheel_scale_random_walk_per_sqrt_km: float = 0.005
     # where the wheel speed comes from (issue 15): a topic of the log (TwistStamped, Odometry) or a
     # CSV file ``timestamp,speed``; None: the dataset folder's wheel_speed.csv when there is one
     wheel_speed_source: str | None = None
@@ -297,7 +302,7 @@ class ScaleConfig:
     ground_plane_fit: bool = True
     ground_normal_prior_sigma_deg: float = 2.0
     ground_lane_half_width_m: float | None = 2.0
-    ground_lane_length_m: float = 25.0
+    ground_lane_length_m: float = 40.0
     cross_camera: bool = True
     cross_camera_max_gap: int = 6
     cross_camera_gate_px: float = 10.0
@@ -317,6 +322,9 @@ class ScaleConfig:
         if self.smooth_speed_sigma_mps2 is not None:
             _positive(self.smooth_speed_sigma_mps2, where + "smooth_speed_sigma_mps2")
         _positive(self.wheel_speed_sigma_m, where + "wheel_speed_sigma_m")
+        if self.wheel_scale_sigma is not None:
+            _positive(self.wheel_scale_sigma, where + "wheel_scale_sigma")
+        _positive(self.wheel_scale_random_walk_per_sqrt_km, where + "wheel_scale_random_walk_per_sqrt_km")
         _positive(self.ground_height_sigma_m, where + "ground_height_sigma_m")
         _at_least(self.ground_normal_sigma_deg, 0.0, where + "ground_normal_sigma_deg")
         _positive(self.ground_normal_prior_sigma_deg, where + "ground_normal_prior_sigma_deg")

@@ -13,7 +13,8 @@ x forward, y left, z up; right perturbations, tangent ``[omega, v]``) and the hi
 - :class:`JointLoopFactor`: ``Log((X (Rz(theta), 0))^-1 Y)`` (eqs. (3)-(5)).
 - :class:`NonHolonomicFactor`: circular-arc constraint of a rigid axle (DESIGN (NH)).
 - :class:`PlanarMotionFactor`: relative roll, pitch and height near zero.
-- :class:`WheelSpeedFactor`: chord length of an axle midpoint (optional scale source).
+- :class:`WheelSpeedFactor`: chord length of an axle midpoint (optional scale source), with the
+  wheel odometry's scale as an optional variable.
 - :func:`robust_noise`: isotropic noise with per-residual Huber weighting.
 
 Nothing here imports from the pipeline; only ``ampc_vo.geometry``, ``ampc_vo.epipolar`` and
@@ -34,7 +35,7 @@ from factors.noise import robust_noise
 from factors.nonholonomic import NonHolonomicFactor, nonholonomic_error
 from factors.planar import PlanarMotionFactor, planar_motion_error
 from factors.stacked import StackedFactor, Term
-from factors.wheel_speed import WheelSpeedFactor, chord_error
+from factors.wheel_speed import WheelSpeedFactor, chord_error, scaled_chord_error
 
 __all__ = [
     "ArticulatedEpipolarFactor",
@@ -56,5 +57,6 @@ __all__ = [
     "nonholonomic_error",
     "planar_motion_error",
     "robust_noise",
+    "scaled_chord_error",
     "stacked_epipolar_error",
 ]

@@ -9,6 +9,11 @@ midpoint and ``rho`` the measured chord length of the axle midpoint (e.g. wheel 
 length L, which exceeds the chord by about ``L^3 kappa^2 / 24`` on an arc of curvature kappa).
 Positive when the estimate moved farther than measured. At standstill (``|d| -> 0``) the direction
 of ``d`` is undefined and the Jacobian is set to zero.
+
+With the wheel odometry's scale ``s`` as a variable (issue 15: tyre radius, load and wear make
+wheel odometry read a per cent or so long or short, a scale the other metric sources calibrate
+online; DESIGN 3), the residual is ``e = s |d| - rho`` (metres): ``rho`` measures ``s`` times the
+true chord.
 """
 from __future__ import annotations
 
@@ -16,7 +21,7 @@ import gtsam
 import numpy as np
 
 from factors._checks import check_distinct_keys, check_finite_scalar, check_noise_model
-from factors._custom import POSE, make_error_function
+from factors._custom import POSE, SCALAR, make_error_function
 from factors._lie import relative_motion
 from factors.nonholonomic import axle_displacement
 
@@ -46,30 +51,59 @@ def chord_error(
     return residual, [jacobian @ between_i, jacobian]
 
 
+def scaled_chord_error(
+    T_world_i: gtsam.Pose3,
+    T_world_j: gtsam.Pose3,
+    wheel_scale: float,
+    axle_x: float,
+    chord_length: float,
+    jacobians: bool = False,
+) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Residual (1,) ``s |d| - rho`` of the module docstring (metres) and, if ``jacobians``, the
+    (1, 6), (1, 6) and (1, 1) Jacobians by the two poses and the wheel scale ``s``."""
+    length, by_poses = chord_error(T_world_i, T_world_j, axle_x, 0.0, jacobians)
+    residual = np.array([wheel_scale * length[0] - chord_length])
+    if not jacobians:
+        return residual, None
+    return residual, [wheel_scale * by_poses[0], wheel_scale * by_poses[1], length.reshape(1, 1)]
+
+
 class WheelSpeedFactor(gtsam.CustomFactor):
     """Chord length of a body's axle midpoint between keyframes i and j (module docstring).
 
     ``axle_x``: signed axle x in the body frame; ``chord_length`` (m, >= 0); ``noise_model`` of
-    dimension 1 in metres.
+    dimension 1 in metres; ``scale_key``: a double variable, the wheel odometry's scale ``s``
+    (:func:`scaled_chord_error`; None: the wheel is taken as exact, :func:`chord_error`).
     """
 
-    def __init__(self, key_i: int, key_j: int, axle_x: float, chord_length: float, noise_model: gtsam.noiseModel.Base) -> None:
-        keys = check_distinct_keys({"key_i": key_i, "key_j": key_j})
+    def __init__(self, key_i: int, key_j: int, axle_x: float, chord_length: float, noise_model: gtsam.noiseModel.Base,
+                 scale_key: int | None = None) -> None:
+        named = {"key_i": key_i, "key_j": key_j} | ({} if scale_key is None else {"scale_key": scale_key})
+        keys = check_distinct_keys(named)
         axle_x = check_finite_scalar(axle_x, "axle_x")
         chord_length = check_finite_scalar(chord_length, "chord_length")
         if chord_length < 0.0:
             raise ValueError(f"chord_length must be >= 0, got {chord_length}")
         check_noise_model(noise_model, 1)
-
-        def evaluate(T_world_i, T_world_j, jacobians=False, axle_x=axle_x, chord_length=chord_length):
-            return chord_error(T_world_i, T_world_j, axle_x, chord_length, jacobians)
-
-        super().__init__(noise_model, keys, make_error_function(keys, (POSE, POSE), evaluate))
         self.axle_x = axle_x
         self.chord_length = chord_length
+        self.scaled = scale_key is not None
+
+        if self.scaled:
+            def evaluate(T_world_i, T_world_j, wheel_scale, jacobians=False, axle_x=axle_x, chord_length=chord_length):
+                return scaled_chord_error(T_world_i, T_world_j, wheel_scale, axle_x, chord_length, jacobians)
+            kinds = (POSE, POSE, SCALAR)
+        else:
+            def evaluate(T_world_i, T_world_j, jacobians=False, axle_x=axle_x, chord_length=chord_length):
+                return chord_error(T_world_i, T_world_j, axle_x, chord_length, jacobians)
+            kinds = (POSE, POSE)
+        super().__init__(noise_model, keys, make_error_function(keys, kinds, evaluate))
 
     def evaluate(
-        self, T_world_i: gtsam.Pose3, T_world_j: gtsam.Pose3, jacobians: bool = False
+        self, T_world_i: gtsam.Pose3, T_world_j: gtsam.Pose3, wheel_scale: float | None = None, jacobians: bool = False
     ) -> tuple[np.ndarray, list[np.ndarray] | None]:
-        """Unwhitened residual (1,) and optionally its Jacobians (see :func:`chord_error`)."""
-        return chord_error(T_world_i, T_world_j, self.axle_x, self.chord_length, jacobians)
+        """Unwhitened residual (1,) and optionally its Jacobians (:func:`chord_error`, or
+        :func:`scaled_chord_error` with ``wheel_scale``)."""
+        if wheel_scale is None:
+            return chord_error(T_world_i, T_world_j, self.axle_x, self.chord_length, jacobians)
+        return scaled_chord_error(T_world_i, T_world_j, wheel_scale, self.axle_x, self.chord_length, jacobians)

@@ -304,6 +304,11 @@ class OdometryPipeline:
                 logger.warning("stream ended before any metric motion was measured: no poses for its last %d keyframes", len(self._bootstrap))
         remaining = self.smoother.flush()
         self._after_publish(remaining)
+        wheel_scale = self.smoother.wheel_scale()
+        if wheel_scale is not None:
+            scale, sigma = wheel_scale
+            logger.info("wheel odometry scale calibrated online: %.4f%s (its reading over the true distance)", scale,
+                        "" if sigma is None else f" +- {sigma:.4f}")
         return published + remaining
 
     def _after_publish(self, published: list[KeyframeEstimate]) -> None:

@@ -63,7 +63,7 @@ from enum import Enum
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import A, X, Y
+from gtsam.symbol_shorthand import A, W, X, Y
 
 from ampc_vo.config import VoConfig
 from ampc_vo.epipolar import gec_sampson
@@ -78,7 +78,7 @@ from factors.nonholonomic import nonholonomic_error
 from factors.planar import planar_motion_error
 from factors.relative_pose import relative_pose_error
 from factors.stacked import StackedFactor, Term
-from factors.wheel_speed import chord_error
+from factors.wheel_speed import chord_error, scaled_chord_error
 from factors.relative_pose import RelativePoseFactor
 from factors.smooth_speed import SmoothSpeedFactor
 
@@ -349,6 +349,10 @@ class ArticulatedSmoother:
         restart.insert(X(k), T_world_tractor, keyframe.timestamp)
         prior = _pose_sigmas(np.radians(config.prior_rotation_sigma_deg), config.prior_translation_sigma_m)
         restart.graph.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(T_world_tractor), prior))
+        if self._wheel_scale:
+            scale = pending.values.atDouble(W(k))
+            restart.insert(W(k), float(scale), keyframe.timestamp)
+            restart.graph.add(gtsam.PriorFactorDouble(W(k), float(scale), gtsam.noiseModel.Isotropic.Sigma(1, self.config.scale.wheel_scale_sigma)))
         if self.use_trailer:
             T_world_trailer = pending.values.atPose3(Y(k)).matrix()
             restart.insert(Y(k), T_world_trailer, keyframe.timestamp)
@@ -387,6 +391,9 @@ class ArticulatedSmoother:
         pending.insert(X(first.index), T_world_tractor, first.timestamp)
         prior = _pose_sigmas(np.radians(config.prior_rotation_sigma_deg), config.prior_translation_sigma_m)
         pending.graph.add(gtsam.PriorFactorPose3(X(first.index), gtsam.Pose3(T_world_tractor), prior))
+        if self._wheel_scale:
+            pending.insert(W(first.index), 1.0, first.timestamp)
+            pending.graph.add(gtsam.PriorFactorDouble(W(first.index), 1.0, gtsam.noiseModel.Isotropic.Sigma(1, self.config.scale.wheel_scale_sigma)))
         if not self.use_trailer:
             return
         hitch = next_init.hitch_prev if next_init.hitch_prev is not None else 0.0
@@ -421,6 +428,7 @@ class ArticulatedSmoother:
         T_world_tractor = self._pose(X(previous), pending) @ init.T_tractor
         keyframe.chord = float(np.linalg.norm(init.T_tractor[:3, 3]))
         pending.insert(X(k), T_world_tractor, keyframe.timestamp)
+        self._add_wheel_scale(keyframe, pending)
         self._log_state("tractor", init.tractor_status, keyframe)
         if self.use_trailer:
             self._log_state("trailer", init.trailer_status, keyframe)
@@ -467,12 +475,50 @@ class ArticulatedSmoother:
                 self._add_smooth_speed(key, keyframe, pending)
             axle_x = self.rig.axle_x("tractor")
             if body == "tractor" and self.config.scale.wheel_speed and init.wheel_chord is not None:
-                pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(init.wheel_chord)),
-                                          np.array([self.config.scale.wheel_speed_sigma_m])))
+                wheel_sigma = np.array([self.config.scale.wheel_speed_sigma_m])
+                if self._wheel_scale:
+                    pending.terms.append(Term(pair + (W(k),), (POSE, POSE, SCALAR),
+                                              partial(scaled_chord_error, axle_x=axle_x, chord_length=float(init.wheel_chord)), wheel_sigma))
+                else:
+                    pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(init.wheel_chord)), wheel_sigma))
             if body == "tractor" and init.scale_chord is not None:
                 chord, chord_sigma = init.scale_chord
                 pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(chord)), np.array([float(chord_sigma)]), config.huber_k))
         self._add_stacked_epipolar(epipolar_blocks, pending)
+
+    @property
+    def _wheel_scale(self) -> bool:
+        """The wheel odometry's scale is a variable ``W(k)`` (config ``scale.wheel_scale_sigma``)."""
+        return self.config.scale.wheel_speed and self.config.scale.wheel_scale_sigma is not None
+
+    def _add_wheel_scale(self, keyframe: _Keyframe, pending: _Pending) -> None:
+        """``W(k)``, the wheel odometry's scale at keyframe k (factors.wheel_speed,
+        ``scaled_chord_error``): a random walk from ``W(k-1)`` whose sigma grows with the square
+        root of the distance driven (``scale.wheel_scale_random_walk_per_sqrt_km``; tyres warm up,
+        pressure and load change slowly), so the other metric sources (ground plane, cross-camera
+        pairs, the 2-point solver in turns) calibrate it over the whole drive, not one window."""
+        if not self._wheel_scale:
+            return
+        k = keyframe.index
+        scale = self._double(W(k - 1), pending)
+        pending.insert(W(k), float(scale), keyframe.timestamp)
+        travelled_km = keyframe.chord / 1000.0
+        sigma = max(self.config.scale.wheel_scale_random_walk_per_sqrt_km * np.sqrt(travelled_km), 1e-5)
+        pending.graph.add(gtsam.BetweenFactorDouble(W(k - 1), W(k), 0.0, gtsam.noiseModel.Isotropic.Sigma(1, sigma)))
+
+    def wheel_scale(self) -> tuple[float, float | None] | None:
+        """The newest estimate of the wheel odometry's scale and its sigma (from the last marginals
+        when there are any); None when it is not estimated."""
+        newest = max(self._window, default=None)
+        if not self._wheel_scale or newest is None or not self._estimate.exists(W(newest)):
+            return None
+        sigma = None
+        if self._marginals is not None:
+            try:
+                sigma = float(np.sqrt(self._marginals.marginalCovariance(W(newest))[0, 0]))
+            except RuntimeError:
+                sigma = None
+        return float(self._estimate.atDouble(W(newest))), sigma
 
     def _initial_hitch(self, keyframe: _Keyframe, pending: _Pending) -> float:
         """θ_k: the window's θ_{k-1} plus the 1-point RANSAC's change of θ over the pair if any, else held (standstill) or predicted by the

@@ -69,9 +69,15 @@ gave chords 3 % short (the other lane lies below the own lane's plane extended).
 are therefore taken from the truck's own lane, where its axles stand on the plane (G) assumes:
 the bearings meeting the calibrated road plane within ``lane_half_width_m`` (2 m: half a 3.5-3.75
 m lane plus its markings) of the axle's path (a circular arc of the motion's curvature, ahead and
-behind) and within ``lane_length_m`` (25 m) of the axle along it, when at least
-``min_lane_points`` (15) candidates lie there; else the whole view, as before (a lane without
-texture). The lane is also where the traffic ahead drives: a vehicle moving along the truck's
+behind) and within ``lane_length_m`` (40 m) of the axle along it, when at least
+``min_lane_points`` (8, as ``min_points``: the plane's tilt and chord with some redundancy)
+candidates lie there; else the whole view, as before (a lane without texture). The lane's
+texture is sparse (lane markings and worn patches on plain asphalt): with 15 points and 25 m the
+own lane fell back to the crowned whole view on most keyframes of the simulated motorway and its
+chord read 3 % short (ground chords with the true motion, median over its frames 100-1000: 0.967
+of the truth; with 8 points and 40 m 1.000, the hilly road 0.994 -> 1.002, the city 0.990 ->
+1.003). A vertical curve bends the road by up to 40 cm at 40 m (K = 2000 m), but points that far
+ahead carry little weight in the inverse-variance chord, and the plane's pitch is fitted. The lane is also where the traffic ahead drives: a vehicle moving along the truck's
 path, and its shadow on the road, are consistent with the ego-motion's epipolar geometry at
 another depth and read as chords tens of % short. So the lane's points are those within
 ``lane_consensus_tolerance`` (15 %) of the whole view's road (1-D consensus over every
@@ -172,8 +178,8 @@ class GroundScaleOptions:
     normal_search: tuple[tuple[float, ...], tuple[float, ...]] = (tuple(np.deg2rad([-3.0, -1.5, 0.0, 1.5, 3.0])), (0.0,))
     plane_rounds: int = 6
     lane_half_width_m: float | None = 2.0
-    lane_length_m: float = 25.0
-    min_lane_points: int = 15
+    lane_length_m: float = 40.0
+    min_lane_points: int = 8
     lane_consensus_tolerance: float = 0.15
 
 

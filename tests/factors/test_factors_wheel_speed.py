@@ -4,11 +4,11 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
-from gtsam.utils.numerical_derivative import numericalDerivative21, numericalDerivative22
+from gtsam.utils.numerical_derivative import numericalDerivative21, numericalDerivative22, numericalDerivative31, numericalDerivative32, numericalDerivative33
 
 from ampc_vo.geometry import make_pose, rot_z
-from factors import WheelSpeedFactor, chord_error
-from factors_support import articulated_truth, assert_jacobian_close, random_pose
+from factors import WheelSpeedFactor, chord_error, scaled_chord_error
+from factors_support import articulated_truth, as_float, assert_jacobian_close, random_pose
 
 NOISE = gtsam.noiseModel.Isotropic.Sigma(1, 0.05)
 
@@ -49,3 +49,55 @@ def test_standstill_and_guards():
         WheelSpeedFactor(0, 1, 0.5, -1.0, NOISE)
     with pytest.raises(ValueError, match="dimension"):
         WheelSpeedFactor(0, 1, 0.5, 1.0, gtsam.noiseModel.Isotropic.Sigma(2, 0.05))
+    with pytest.raises(ValueError, match="distinct"):
+        WheelSpeedFactor(0, 1, 0.5, 1.0, NOISE, scale_key=1)
+
+
+@pytest.mark.parametrize("yaw_change", [0.0, 0.3, 2.5])
+def test_scaled_chord_jacobians_match_numerical_derivatives(yaw_change):
+    rng = np.random.default_rng(6)
+    pose_i = random_pose(rng, 1.0, 10.0)
+    pose_j = pose_i.compose(gtsam.Pose3(make_pose(rot_z(yaw_change), np.array([1.2, 0.3, 0.05]))))
+    scale = 1.013
+
+    def residual(T_world_i, T_world_j, wheel_scale):
+        return scaled_chord_error(T_world_i, T_world_j, as_float(wheel_scale), 0.7, 1.0)[0]
+
+    _, (jacobian_i, jacobian_j, jacobian_scale) = scaled_chord_error(pose_i, pose_j, scale, 0.7, 1.0, jacobians=True)
+    assert jacobian_scale.shape == (1, 1)
+    assert_jacobian_close(jacobian_i, numericalDerivative31(residual, pose_i, pose_j, scale))
+    assert_jacobian_close(jacobian_j, numericalDerivative32(residual, pose_i, pose_j, scale))
+    assert_jacobian_close(jacobian_scale, numericalDerivative33(residual, pose_i, pose_j, scale))
+
+
+def test_wheel_scale_is_recovered_beside_an_exact_metric_chord():
+    """A precise wheel reading 1.5 % long on every pair beside a noisier but unbiased metric chord
+    (the ground plane's, say): the optimised scale variable is 1.015 and every pose's chord is the
+    true one; without the scale variable the wheel's error goes into the trajectory."""
+    truth = articulated_truth(np.random.default_rng(3))
+    axle_x, chord = truth.problem.tractor_axle_x, truth.problem.chord
+    step = truth.tractor_i.between(truth.tractor_j)
+    poses = [truth.tractor_i]
+    for _ in range(4):
+        poses.append(poses[-1].compose(step))
+    for scaled in (True, False):
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        scale_key, precise = 100, gtsam.noiseModel.Isotropic.Sigma(1, 0.002)
+        graph.add(gtsam.PriorFactorPose3(0, poses[0], gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+        for index in range(4):
+            rotation_only = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-6] * 3 + [10.0] * 3))
+            graph.add(gtsam.BetweenFactorPose3(index, index + 1, step, rotation_only))
+            graph.add(WheelSpeedFactor(index, index + 1, axle_x, 1.015 * chord, precise, scale_key if scaled else None))
+            graph.add(WheelSpeedFactor(index, index + 1, axle_x, chord, gtsam.noiseModel.Isotropic.Sigma(1, 0.02)))
+        for index, pose in enumerate(poses):
+            values.insert(index, pose)
+        if scaled:
+            values.insert(scale_key, 1.0)
+            graph.add(gtsam.PriorFactorDouble(scale_key, 1.0, gtsam.noiseModel.Isotropic.Sigma(1, 0.03)))
+        result = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
+        chords = [chord_error(result.atPose3(index), result.atPose3(index + 1), axle_x, 0.0)[0][0] for index in range(4)]
+        if scaled:
+            assert result.atDouble(scale_key) == pytest.approx(1.015, abs=2e-3)
+            np.testing.assert_allclose(chords, chord, rtol=2e-3)
+        else:
+            assert np.mean(chords) > 1.01 * chord
