@@ -516,7 +516,7 @@ class ArticulatedSmoother:
         if self._marginals is not None:
             try:
                 sigma = float(np.sqrt(self._marginals.marginalCovariance(W(newest))[0, 0]))
-            except RuntimeError:
+            except (RuntimeError, IndexError):  # as for the hitch's sigma (_sigma_of)
                 sigma = None
         return float(self._estimate.atDouble(W(newest))), sigma
 

@@ -42,6 +42,8 @@ def test_the_wheel_chord_carries_the_scale(ci_simulation, caplog):
     assert _ratio(calibrated, truth) == pytest.approx(1.0, abs=0.015)
     line = next(record.getMessage() for record in caplog.records if "wheel odometry scale calibrated" in record.getMessage())
     assert float(line.split(": ")[1].split()[0]) == pytest.approx(1.05, abs=0.02)
+    sigma = float(line.split("+- ")[1].split()[0])  # the marginal of the last window
+    assert 0.0 < sigma < 0.03
     config = calibrated_config
     # a wheel odometry that measures nothing (outside its samples) changes nothing
     _, empty = run_on_frames(result.rig, config, frames(), total=len(truth), wheel_odometry=lambda t_i, t_j: None)
