@@ -12,7 +12,7 @@ from ampc_vo.errors import AmpcError
 from ampc_vo.io.groundtruth import GroundTruth
 from ampc_vo.tools.evaluation import evaluate, evaluate_output, plot_evaluation, write_metrics
 from ampc_vo.io.datasets import load_groundtruth
-from ampc_vo.geometry import make_pose, planar_pose, rot_z
+from ampc_vo.geometry import make_pose, planar_pose, rot_y, rot_z
 from ampc_vo.io.outputs import HitchSeries, OutputWriter, Trajectory
 
 
@@ -41,8 +41,19 @@ def test_perfect_estimate_in_another_frame():
     assert result.frames == 400
     assert result.distance_m == pytest.approx(199.5, rel=1e-3)
     assert result.tractor_ate_m < 1e-6 and result.tractor_ate_sim3_m < 1e-6 and result.trailer_ate_m < 1e-6
-    assert result.tractor_rpe_percent < 1e-6
+    assert result.tractor_rpe_percent < 1e-6 and result.tractor_rotation_drift_deg_per_100m < 1e-6
     assert result.hitch_rmse_deg < 1e-9 and result.hitch_max_deg < 1e-9
+
+
+def test_a_pitch_drift_that_the_ate_does_not_see():
+    """Orientations pitched by 0.5 deg per 100 m of path with exact positions: the ATE is zero,
+    the rotation drift over 100 m segments reads 0.5 deg per 100 m."""
+    truth = _truth()
+    travelled = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(truth.T_world_tractor[:, :3, 3], axis=0), axis=1))])
+    pitched = np.array([pose @ make_pose(rot_y(np.radians(0.5) * s / 100.0), np.zeros(3)) for pose, s in zip(truth.T_world_tractor, travelled)])
+    result = evaluate(truth, Trajectory(truth.timestamps, pitched)).metrics
+    assert result.tractor_ate_m < 1e-6
+    assert result.tractor_rotation_drift_deg_per_100m == pytest.approx(0.5, rel=0.1)  # evo: pairs 100-110 m apart
 
 
 def test_known_lateral_offset_of_half_the_points():
@@ -101,7 +112,7 @@ def test_hitch_wraps_angles():
 def test_short_run_has_no_rpe_and_unmatched_times_fail():
     truth = _truth()
     result = evaluate(truth, Trajectory(truth.timestamps[:10], truth.T_world_tractor[:10])).metrics
-    assert result.tractor_rpe_percent is None
+    assert result.tractor_rpe_percent is None and result.tractor_rotation_drift_deg_per_100m is None
     with pytest.raises(AmpcError):
         evaluate(truth, Trajectory(truth.timestamps[:10] + 0.05, truth.T_world_tractor[:10]))
 
