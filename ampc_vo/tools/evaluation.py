@@ -143,42 +143,36 @@ def _ape_rmse(truth: PoseTrajectory3D, estimate: PoseTrajectory3D) -> float:
     return float(metric.get_statistic(metrics.StatisticsType.rmse))
 
 
-def relative_pose_error_percent(truth: PoseTrajectory3D, estimate: PoseTrajectory3D, segment_m: float = RPE_SEGMENT_M) -> float | None:
-    """Mean translation error over ``segment_m`` segments of the truth's path, in percent of it.
-
-    Segments are chosen on the ground truth (``pairs_from_reference``) so that a scale error of the
-    estimate does not change which pairs are compared. ``None`` when the run is shorter.
-    """
-    if _path_length(truth.positions_xyz) < segment_m * 0.9:
-        return None
-    metric = metrics.RPE(
-        metrics.PoseRelation.translation_part, delta=segment_m, delta_unit=metrics.Unit.meters,
-        all_pairs=True, pairs_from_reference=True,
-    )
+def _mean_segment_error(truth: PoseTrajectory3D, estimate: PoseTrajectory3D, relation: "metrics.PoseRelation", segment_m: float) -> float | None:
+    """Mean evo RPE error of ``relation`` over ``segment_m`` segments of the truth's path (pairs
+    chosen on the ground truth, ``pairs_from_reference``, so that a scale error of the estimate
+    does not change which pairs are compared); ``None`` when the run is too short or too sparse."""
+    metric = metrics.RPE(relation, delta=segment_m, delta_unit=metrics.Unit.meters, all_pairs=True, pairs_from_reference=True)
     try:
         metric.process_data((truth, estimate))
     except (metrics.MetricsException, filters.FilterException) as error:  # too few poses (sparse run) for the segments
         logger.warning("RPE over %g m not computable from %d poses (too sparse for the segment length): %s", segment_m, truth.num_poses, error)
         return None
-    return float(np.mean(metric.error) / segment_m * 100.0)
+    return float(np.mean(metric.error))
+
+
+def relative_pose_error_percent(truth: PoseTrajectory3D, estimate: PoseTrajectory3D, segment_m: float = RPE_SEGMENT_M) -> float | None:
+    """Mean translation error over ``segment_m`` segments of the truth's path, in percent of it
+    (:func:`_mean_segment_error`). ``None`` when the run is shorter."""
+    if _path_length(truth.positions_xyz) < segment_m * 0.9:
+        return None
+    error = _mean_segment_error(truth, estimate, metrics.PoseRelation.translation_part, segment_m)
+    return None if error is None else error / segment_m * 100.0
 
 
 def rotation_drift_deg_per_100m(truth: PoseTrajectory3D, estimate: PoseTrajectory3D, segment_m: float = ROTATION_DRIFT_SEGMENT_M) -> float | None:
     """Mean rotation angle error (degrees) of the relative motion over ``segment_m`` segments of
-    the truth's path, per 100 m (segments chosen on the truth, as :func:`relative_pose_error_percent`).
-    ``None`` when the run is shorter than a segment."""
+    the truth's path, per 100 m (:func:`_mean_segment_error`). ``None`` when the run is shorter
+    than a segment."""
     if _path_length(truth.positions_xyz) < segment_m:
         return None
-    metric = metrics.RPE(
-        metrics.PoseRelation.rotation_angle_deg, delta=segment_m, delta_unit=metrics.Unit.meters,
-        all_pairs=True, pairs_from_reference=True,
-    )
-    try:
-        metric.process_data((truth, estimate))
-    except (metrics.MetricsException, filters.FilterException) as error:
-        logger.warning("rotation drift over %g m not computable from %d poses: %s", segment_m, truth.num_poses, error)
-        return None
-    return float(np.mean(metric.error) / segment_m * 100.0)
+    error = _mean_segment_error(truth, estimate, metrics.PoseRelation.rotation_angle_deg, segment_m)
+    return None if error is None else error / segment_m * 100.0
 
 
 def hitch_errors(estimate: HitchSeries, truth_timestamps: np.ndarray, truth_angles: np.ndarray, max_diff: float) -> np.ndarray:
