@@ -58,7 +58,7 @@ from __future__ import annotations
 import logging
 import time
 from functools import partial
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
 import gtsam
@@ -138,6 +138,20 @@ class KeyframeEstimate:
     hitch_sigma: float | None
     tractor_status: str
     trailer_status: str
+
+
+def _with_hitch_of(held: KeyframeEstimate, mover: KeyframeEstimate) -> KeyframeEstimate:
+    """``held`` (a keyframe at rest) with the hitch angle and sigma of ``mover`` when those are
+    better known (smaller sigma); its trailer pose turned about the hitch (the body origin) by the
+    change (``ArticulatedSmoother._release``)."""
+    if mover.hitch_angle is None or mover.hitch_sigma is None or held.hitch_angle is None or held.hitch_sigma is None:
+        return held
+    if mover.hitch_sigma >= held.hitch_sigma:
+        return held
+    T_world_trailer = held.T_world_trailer
+    if T_world_trailer is not None:
+        T_world_trailer = T_world_trailer @ make_pose(rot_z(mover.hitch_angle - held.hitch_angle), np.zeros(3))
+    return replace(held, hitch_angle=mover.hitch_angle, hitch_sigma=mover.hitch_sigma, T_world_trailer=T_world_trailer)
 
 
 @dataclass
@@ -249,6 +263,7 @@ class ArticulatedSmoother:
         self._last_state: dict[str, str] = {}
         self._marginals: gtsam.Marginals | None = None
         self._last_sigma: float | None = None  # the last hitch sigma the marginals gave (_sigma_of)
+        self._held: list[KeyframeEstimate] = []  # lagged: keyframes at rest awaiting the hitch of the drive-off
 
     # ------------------------------------------------------------------ public
     @property
@@ -268,7 +283,8 @@ class ArticulatedSmoother:
         if lagged:
             # keyframes the coming update will marginalise: publish their fully smoothed estimate now
             horizon = keyframe.timestamp - self.config.smoother.lag_s
-            leaving = [self._publish(self._window[index], self._sigma_of(index)) for index in sorted(self._window) if self._window[index].timestamp < horizon]
+            leaving = self._release([(self._publish(self._window[index], self._sigma_of(index)), self._at_rest(index))
+                                     for index in sorted(self._window) if self._window[index].timestamp < horizon])
         started = time.perf_counter()
         cpu_started = time.process_time()
         pending = _Pending()
@@ -371,10 +387,40 @@ class ArticulatedSmoother:
         self._window = {k: keyframe}
 
     def flush(self) -> list[KeyframeEstimate]:
-        """End of the stream: with ``output.publish: lagged`` the keyframes still in the window."""
+        """End of the stream: with ``output.publish: lagged`` the keyframes still in the window
+        (and those held at rest, :meth:`_release`)."""
         if self.config.output.publish != "lagged":
             return []
-        return [self._publish(self._window[index], self._sigma_of(index)) for index in sorted(self._window)]
+        remaining = self._release([(self._publish(self._window[index], self._sigma_of(index)), False) for index in sorted(self._window)])
+        held, self._held = self._held, []
+        return held + remaining
+
+    def _at_rest(self, index: int) -> bool:
+        """Keyframe ``index`` stands still: its motion from the previous keyframe, or the next
+        keyframe's motion from it (the first keyframe of a standing start), is a standstill."""
+        following = self._window.get(index + 1)
+        return self._window[index].init.tractor_status is MotionStatus.STANDSTILL or (
+            following is not None and following.init.tractor_status is MotionStatus.STANDSTILL)
+
+    def _release(self, leaving: list[tuple[KeyframeEstimate, bool]]) -> list[KeyframeEstimate]:
+        """Lagged publication across a standstill (issue 16, DESIGN 11): the bodies cannot turn
+        relative to each other at rest, so every keyframe of a standstill has the hitch angle the
+        truck drives off with. A standstill longer than the lag leaves the window before any
+        motion has measured it (a standing start: the prior's tens of degrees, or a guess from a
+        first step), so keyframes at rest (``(estimate, at_rest)``) are held back and published
+        with the first moving keyframe that leaves the window, taking its hitch and sigma where
+        that sigma is the smaller (after a stop in traffic the hitch measured before the stop
+        stays); the trailer pose turns about the hitch with it. Publication order is kept."""
+        published: list[KeyframeEstimate] = []
+        for estimate, at_rest in leaving:
+            if at_rest and estimate.hitch_sigma is not None:
+                self._held.append(estimate)
+                continue
+            if self._held:
+                published += [_with_hitch_of(held, estimate) for held in self._held]
+                self._held = []
+            published.append(estimate)
+        return published
 
     def estimate(self, index: int) -> KeyframeEstimate:
         """Current (smoothed) estimate of a keyframe still in the window."""

@@ -217,6 +217,25 @@ def test_standing_start_hitch_is_right_or_honestly_uncertain(standing_start, tmp
     assert np.median(np.degrees(hitch.sigmas[moving])) < 0.5
 
 
+def test_a_standstill_longer_than_the_lag_gets_the_hitch_of_the_drive_off(standing_start, tmp_path):
+    """Issue 16, lagged mode: a standstill longer than the smoother's lag (1.5 s at rest, lag 1 s)
+    leaves the window before any motion has measured the hitch; the keyframes at rest are held
+    back and published with the hitch (and sigma) of the first moving keyframe that leaves the
+    window: the bodies cannot turn relative to each other at rest. Without the hold they carry
+    the prior's sigma (tens of degrees)."""
+    root, result = standing_start
+    config = config_from_dict({"output": {"progress": False, "publish": "lagged"}, "smoother": {"lag_s": 1.0}})
+    run_on_frames(result.rig, config, result.measurements.frames(result.rig), tmp_path, total=len(result.trajectory))
+    metrics = evaluate_output(tmp_path, load_groundtruth(root)).metrics
+    hitch = read_hitch(tmp_path / "hitch.csv")
+    at_rest = hitch.timestamps < 1.4
+    assert at_rest.sum() >= 2 and np.all(np.diff(hitch.timestamps) > 0.0)
+    assert np.all(np.degrees(hitch.sigmas[at_rest]) < 2.0)
+    assert metrics.hitch_max_deg < 1.0 and metrics.hitch_within_2sigma >= 0.95
+    tractor = read_tum(tmp_path / "tractor.tum")
+    np.testing.assert_array_equal(tractor.timestamps, hitch.timestamps)
+
+
 def test_the_constant_velocity_prediction_keeps_the_direction_of_travel() -> None:
     """Reversing (the body's origin moving backwards in its own frame) gives a negative speed, so
     the next pair is predicted backwards; a wheel-odometry chord sets the length with its own sign."""
