@@ -366,9 +366,7 @@ class ArticulatedSmoother:
         prior = _pose_sigmas(np.radians(config.prior_rotation_sigma_deg), config.prior_translation_sigma_m)
         restart.graph.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(T_world_tractor), prior))
         if self._wheel_scale:
-            scale = pending.values.atDouble(W(k))
-            restart.insert(W(k), float(scale), keyframe.timestamp)
-            restart.graph.add(gtsam.PriorFactorDouble(W(k), float(scale), gtsam.noiseModel.Isotropic.Sigma(1, self.config.scale.wheel_scale_sigma)))
+            self._add_wheel_scale_prior(k, float(pending.values.atDouble(W(k))), keyframe.timestamp, restart)
         if self.use_trailer:
             T_world_trailer = pending.values.atPose3(Y(k)).matrix()
             restart.insert(Y(k), T_world_trailer, keyframe.timestamp)
@@ -438,8 +436,7 @@ class ArticulatedSmoother:
         prior = _pose_sigmas(np.radians(config.prior_rotation_sigma_deg), config.prior_translation_sigma_m)
         pending.graph.add(gtsam.PriorFactorPose3(X(first.index), gtsam.Pose3(T_world_tractor), prior))
         if self._wheel_scale:
-            pending.insert(W(first.index), 1.0, first.timestamp)
-            pending.graph.add(gtsam.PriorFactorDouble(W(first.index), 1.0, gtsam.noiseModel.Isotropic.Sigma(1, self.config.scale.wheel_scale_sigma)))
+            self._add_wheel_scale_prior(first.index, 1.0, first.timestamp, pending)
         if not self.use_trailer:
             return
         hitch = next_init.hitch_prev if next_init.hitch_prev is not None else 0.0
@@ -537,6 +534,11 @@ class ArticulatedSmoother:
         """The wheel odometry's scale is a variable ``W(k)`` (config ``scale.wheel_scale_sigma``)."""
         return self.config.scale.wheel_speed and self.config.scale.wheel_scale_sigma is not None
 
+    def _add_wheel_scale_prior(self, k: int, scale: float, timestamp: float, pending: _Pending) -> None:
+        """``W(k) = scale`` with the prior ``scale.wheel_scale_sigma`` (first keyframe, restart)."""
+        pending.insert(W(k), scale, timestamp)
+        pending.graph.add(gtsam.PriorFactorDouble(W(k), scale, gtsam.noiseModel.Isotropic.Sigma(1, self.config.scale.wheel_scale_sigma)))
+
     def _add_wheel_scale(self, keyframe: _Keyframe, pending: _Pending) -> None:
         """``W(k)``, the wheel odometry's scale at keyframe k (factors.wheel_speed,
         ``scaled_chord_error``): a random walk from ``W(k-1)`` whose sigma grows with the square
@@ -558,13 +560,7 @@ class ArticulatedSmoother:
         newest = max(self._window, default=None)
         if not self._wheel_scale or newest is None or not self._estimate.exists(W(newest)):
             return None
-        sigma = None
-        if self._marginals is not None:
-            try:
-                sigma = float(np.sqrt(self._marginals.marginalCovariance(W(newest))[0, 0]))
-            except (RuntimeError, IndexError):  # as for the hitch's sigma (_sigma_of)
-                sigma = None
-        return float(self._estimate.atDouble(W(newest))), sigma
+        return float(self._estimate.atDouble(W(newest))), self._marginal_sigma(W(newest))
 
     def _initial_hitch(self, keyframe: _Keyframe, pending: _Pending) -> float:
         """θ_k: the window's θ_{k-1} plus the 1-point RANSAC's change of θ over the pair if any, else held (standstill) or predicted by the
@@ -701,7 +697,8 @@ class ArticulatedSmoother:
         T_world_k = self._pose(key(k), pending)
         cameras = self.rig.cameras_on(body)
         # each camera's extrinsic at its capture time, once per keyframe (not per camera pair)
-        extrinsics_k = {camera.name: self._capture_extrinsic(body, keyframe, camera, pending) for camera in cameras}
+        twist_k = self._body_twist(body, keyframe, pending)
+        extrinsics_k = {camera.name: self._capture_extrinsic(keyframe, camera, twist_k) for camera in cameras}
         cross_gap = 0
         if config.scale.cross_camera and len(cameras) > 1:
             # long cross-camera gaps only with the trailer coupling (joint modes): on a single body
@@ -715,7 +712,8 @@ class ArticulatedSmoother:
             T_j_k = relative_pose(self._pose(key(j), pending), T_world_k)
             if np.linalg.norm(T_j_k[:3, 3]) < config.keyframes.standstill_distance_m:
                 continue
-            extrinsics_j = {camera.name: self._capture_extrinsic(body, earlier, camera, pending) for camera in cameras}
+            twist_j = self._body_twist(body, earlier, pending)
+            extrinsics_j = {camera.name: self._capture_extrinsic(earlier, camera, twist_j) for camera in cameras}
             for camera_j in cameras:
                 first = earlier.observations.cameras.get(camera_j.name)
                 if first is None or len(first) == 0:
@@ -760,18 +758,17 @@ class ArticulatedSmoother:
                     linked_previous |= j == k - 1
         return linked_previous
 
-    def _capture_extrinsic(self, body: str, keyframe: _Keyframe, camera: Camera, pending: _Pending) -> np.ndarray:
+    @staticmethod
+    def _capture_extrinsic(keyframe: _Keyframe, camera: Camera, twist: np.ndarray | None) -> np.ndarray:
         """``T_body_camera`` of ``camera`` at its own capture time: an unsynchronised camera
         (``CameraObservations.timestamp``, frames.csv ``<camera>_timestamp``) took its image
         ``delta`` seconds after the keyframe's time, when the body had moved on. The body pose at
         ``t_k + delta`` on the constant-velocity arc through the keyframe's motion from its
         neighbour turns that into an extrinsic of the keyframe's body pose:
-        ``Exp(delta xi) T_body_camera`` with ``xi`` the body's planar twist (:meth:`_body_twist`)."""
+        ``Exp(delta xi) T_body_camera`` with ``xi`` the body's planar ``twist`` at the keyframe
+        (:meth:`_body_twist`, once per body and keyframe; None: the calibrated extrinsic)."""
         delta = keyframe.observations.camera_timestamp(camera.name) - keyframe.timestamp
-        if abs(delta) < 1e-6:
-            return camera.T_body_camera
-        twist = self._body_twist(body, keyframe, pending)
-        if twist is None:
+        if abs(delta) < 1e-6 or twist is None:
             return camera.T_body_camera
         return gtsam.Pose3.Expmap(twist * delta).matrix() @ camera.T_body_camera
 
@@ -825,6 +822,16 @@ class ArticulatedSmoother:
             logger.warning("keyframe %d: marginal covariance not available (%s)", k, str(error).splitlines()[0])
             return None
 
+    def _marginal_sigma(self, key: int) -> float | None:
+        """1-sigma of a scalar variable from the last marginals; None without marginals or where
+        they cannot give one (RuntimeError; IndexError: a key the marginals' Bayes tree lacks)."""
+        if self._marginals is None:
+            return None
+        try:
+            return float(np.sqrt(self._marginals.marginalCovariance(key)[0, 0]))
+        except (RuntimeError, IndexError):
+            return None
+
     def _sigma_of(self, index: int) -> float | None:
         """1-sigma of θ at keyframe ``index`` from the last marginals; where they cannot give one
         (a singular window, a key the Bayes tree lacks) the last sigma they gave, or the hitch
@@ -832,12 +839,7 @@ class ArticulatedSmoother:
         ``None`` only without a joint hitch or with marginals disabled."""
         if not self.joint or not self.config.smoother.marginals:
             return None
-        sigma = None
-        if self._marginals is not None:
-            try:
-                sigma = float(np.sqrt(self._marginals.marginalCovariance(A(index))[0, 0]))
-            except (RuntimeError, IndexError):  # IndexError: a key the marginals' Bayes tree does not have
-                sigma = None
+        sigma = self._marginal_sigma(A(index))
         if sigma is None or not np.isfinite(sigma):
             return self._last_sigma if self._last_sigma is not None else float(np.radians(self.config.smoother.hitch_prior_sigma_deg))
         self._last_sigma = sigma

@@ -77,8 +77,8 @@ own lane fell back to the crowned whole view on most keyframes of the simulated 
 chord read 3 % short (ground chords with the true motion, median over its frames 100-1000: 0.967
 of the truth; with 8 points and 40 m 1.000, the hilly road 0.994 -> 1.002, the city 0.990 ->
 1.003). A vertical curve bends the road by up to 40 cm at 40 m (K = 2000 m), but points that far
-ahead carry little weight in the inverse-variance chord, and the plane's pitch is fitted. The lane is also where the traffic ahead drives: a vehicle moving along the truck's
-path, and its shadow on the road, are consistent with the ego-motion's epipolar geometry at
+ahead carry little weight in the inverse-variance chord, and the plane's pitch is fitted.
+The lane is also where the traffic ahead drives: a vehicle moving along the truck's path, and its shadow on the road, are consistent with the ego-motion's epipolar geometry at
 another depth and read as chords tens of % short. So the lane's points are those within
 ``lane_consensus_tolerance`` (15 %) of the whole view's road (1-D consensus over every
 candidate, where the static road is the majority).
