@@ -48,6 +48,14 @@ class TrackerConfig:
                                      # road points flow along lane markings in forward motion, so the flow and the ground-
                                      # plane chord came out short (motorway at 25 m/s: chord 0.60-0.92 of the truth)
     border_px: float = 4.0           # tracks closer than this to the image border are dropped
+    plane_warp: bool = True          # second KLT pass for road tracks through the road plane's homography (tracker.py
+                                     # step 2b): translation-only KLT reads a road patch that expands and shears
+                                     # between frames short (motorway 25 m/s, exact road-plane warp: 0.86-0.97 of the
+                                     # flow, 0.99-1.00 with the pass; scripts/measure_road_flow.py)
+    plane_warp_range_m: float = 40.0 # road region: pixels whose ray meets the calibrated road plane within this range
+    plane_warp_threshold_px: float = 3.0  # RANSAC threshold of the frame-to-frame road homography
+    plane_warp_min_tracks: int = 12  # fewer road tracks than this: no second pass
+    plane_warp_levels: int = 2       # pyramid levels of the second pass (it starts at the homography's prediction)
     ransac_threshold_px: float = 1.5 # outlier threshold (converted to radians with the focal length)
     ransac_iterations: int = 32      # essential-matrix hypotheses per frame (8-point samples)
     min_tracks_for_ransac: int = 16  # below this, no outlier rejection
@@ -71,6 +79,8 @@ class TrackerConfig:
             raise ConfigError(f"frontend: aperture_ratio must be in [0, 1), got {self.aperture_ratio}")
         if not 0.0 < self.quality_level < 1.0:
             raise ConfigError(f"frontend: quality_level must be in (0, 1), got {self.quality_level}")
+        if self.plane_warp_range_m <= 0.0 or self.plane_warp_threshold_px <= 0.0 or self.plane_warp_min_tracks < 4 or self.plane_warp_levels < 0:
+            raise ConfigError("frontend: plane_warp_range_m and plane_warp_threshold_px must be positive, plane_warp_min_tracks >= 4, plane_warp_levels >= 0")
         if self.fb_threshold_px <= 0.0 or self.ransac_threshold_px <= 0.0 or self.min_distance_px <= 0.0:
             raise ConfigError("frontend: fb_threshold_px, ransac_threshold_px and min_distance_px must be positive")
 
@@ -279,7 +289,8 @@ class ScaleConfig:
     ``ground_normal_prior_sigma_deg`` per axis. ``ground_lane_half_width_m``, ``ground_lane_length_m``:
     road points from the truck's own lane only (within that distance of its path and along it from
     the axle; the crown, shoulders and verges beyond slope otherwise; null: the whole view) when
-    there are enough there. ``cross_camera``: epipolar
+    there are enough there, else the whole view, or twice the lane's width where that measures another
+    chord (``ampc_vo.scale.ground``, "Own lane"). ``cross_camera``: epipolar
     correspondences between two cameras of one body at different keyframes, associated by
     ``CameraObservations.landmark_ids`` (two-camera GEC: metric scale observable in straight driving),
     up to ``cross_camera_max_gap`` keyframes apart (``max_pair_gap`` in the single-body modes), gated at ``cross_camera_gate_px`` under the

@@ -56,7 +56,7 @@ class MultiCameraFrontend:
                 if name not in rig.camera_names:
                     raise ConfigError(f"frontend: stereo pair {pair} names unknown camera {name!r}")
         self.rig = rig
-        self.trackers = {camera.name: CameraTracker(camera, camera_configs.get(camera.name, config)) for camera in rig.cameras}
+        self.trackers = {camera.name: CameraTracker(camera, camera_configs.get(camera.name, config), road_z=rig.ground_z) for camera in rig.cameras}
         self.stereo_pairs = tuple(tuple(pair) for pair in stereo_pairs)
         self.stereo_config = stereo_config or StereoConfig()
         self._executor = ThreadPoolExecutor(max_workers=threads) if threads > 1 else None

@@ -362,8 +362,9 @@ def test_own_lane_removes_the_bias_of_a_crowned_road() -> None:
 def test_a_sparsely_textured_own_lane_still_gives_the_chord() -> None:
     """The own lane of plain asphalt holds few road points (markings, worn patches): with 8-12 in
     it and the rest on the crowned road beyond, the chord comes from the lane's points (not the
-    whole view, where a lane that demands 15 points falls back to it), right within its sigma,
-    and the sigma says that a dozen points measure less than two hundred. Checked over seeds."""
+    whole view; a lane that demands 15 points takes the whole view or, where that disagrees, the
+    band of the neighbouring lanes' halves), right within its sigma, and the sigma says that a dozen points measure less than two
+    hundred. Checked over seeds."""
     normalized = []
     for seed in range(8):
         rng = np.random.default_rng(70 + seed)
@@ -375,8 +376,8 @@ def test_a_sparsely_textured_own_lane_still_gives_the_chord() -> None:
         strict = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, dataclasses.replace(LANE, min_lane_points=15))
         whole = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, OPTIONS)
         assert lane.ok and strict.ok and whole.ok
-        assert 8 <= lane.inlier_count <= 12 and strict.inlier_count > 150
-        assert strict.chord == whole.chord
+        assert 8 <= lane.inlier_count <= 12 and lane.inlier_count < strict.inlier_count <= whole.inlier_count
+        assert whole.inlier_count > 150
         assert lane.sigma > 1.5 * whole.sigma
         normalized.append((lane.chord - 1.6) / lane.sigma)
     assert np.max(np.abs(normalized)) < 3.0 and np.median(np.abs(normalized)) < 1.0
@@ -416,17 +417,35 @@ def test_own_lane_follows_the_path_in_a_turn_and_reversing() -> None:
     assert result.chord == pytest.approx(1.6, rel=0.02)
 
 
-def test_own_lane_without_enough_points_uses_the_whole_view() -> None:
-    """A lane without texture (fewer than ``min_lane_points`` candidates in it) does not cost the
-    measurement: the whole view gives the chord as before the lane existed."""
+def test_own_lane_without_enough_points_widens_to_the_neighbouring_lanes_where_the_whole_view_disagrees() -> None:
+    """A lane without texture (fewer than ``min_lane_points`` candidates in it) takes the whole view
+    where it agrees with the road points within twice the lane's half width (a flat road: the
+    whole view is the more precise), and those points where it does not (Hausman's test): on a
+    crowned road the whole view reads the far side of the crown (below the own lane's plane
+    extended) and comes out short (rendered motorway, images: 4 % short, on 93 % of its keyframes).
+    Checked over seeds with the calibrated plane (the fitted one absorbs part of the crown)."""
     rng = np.random.default_rng(8)
-    road = _road_points(rng, 120)
-    road = road[np.abs(road[:, 1]) > 2.5]  # nothing in the own lane
-    bearings = _observe(FRONT, road, _motion(0.0, 1.6), rng)
+    road = _road_points(rng, 160)
+    nothing_near = road[np.abs(road[:, 1]) > 4.5]
+    bearings = _observe(FRONT, nothing_near, _motion(0.0, 1.6), rng)
     lane = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, LANE)
     whole = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, OPTIONS)
     assert lane.ok and whole.ok and lane.chord == whole.chord
-    assert lane.chord == pytest.approx(1.6, rel=0.02)
+    assert abs(lane.chord - 1.6) < 3.0 * lane.sigma
+
+    band_errors, whole_errors = [], []
+    for seed in range(6):
+        rng = np.random.default_rng(90 + seed)
+        crowned = _crowned_road(rng, 600)
+        empty_lane = crowned[np.abs(crowned[:, 1]) > 2.2][:250]
+        bearings = _observe(FRONT, empty_lane, _motion(0.0, 1.6), rng)
+        band = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, dataclasses.replace(LANE, fit_plane=False))
+        whole = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, CALIBRATED)
+        assert band.ok and whole.ok and band.inlier_count < whole.inlier_count
+        band_errors.append(band.chord / 1.6 - 1.0)
+        whole_errors.append(whole.chord / 1.6 - 1.0)
+    assert np.median(whole_errors) < -0.02
+    assert np.median(np.abs(band_errors)) < 0.5 * np.median(np.abs(whole_errors))
 
 
 def test_capture_times_of_rolling_shutter_rows_are_taken_into_account() -> None:
