@@ -3,13 +3,15 @@
 
     python scripts/run_odometry.py [DATASET] --out OUT [--config CONFIG] [--mode MODE] [--rerun FILE.rrd]
                                    [--start FRAME] [--stop FRAME] [--rig RIG.yaml] [--wheel-speed [SOURCE]]
+                                   [--without-cameras CAMERA ...]
 
 DATASET is one of: our dataset folder with images (image frontend), our dataset folder with
 measurements.npz only (simulated bearings), or a KITTI odometry folder (recognised by calib.txt and
 its left/right image folders; stereo pair as cross-camera correspondences), or a recording: a ROS 1
 .bag, a ROS 2 bag folder or an .mcap file, with --rig RIG.yaml naming each camera's topic (issue 15).
 --wheel-speed uses the wheel speed (the folder's wheel_speed.csv, or SOURCE: a log topic or a CSV
-timestamp,speed) in the wheel-speed factor. Without DATASET the
+timestamp,speed) in the wheel-speed factor. --without-cameras runs as if those rig cameras were
+not there (the ablation of the trailer cameras: --without-cameras trailer_left trailer_rear). Without DATASET the
 built-in demo runs: the demo route is rendered into a cache folder on first use
 (``$AMPC_VO_CACHE``, default ``~/.cache/ampc_vo``) and evaluated against its ground truth at the end.
 
@@ -60,6 +62,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rig", type=Path, default=None, help="rig.yaml for a recording (each camera's topic)")
     parser.add_argument("--wheel-speed", nargs="?", const="", default=None, metavar="SOURCE",
                         help="use wheel speed: the dataset folder's wheel_speed.csv, or SOURCE (a log topic or a CSV timestamp,speed)")
+    parser.add_argument("--without-cameras", nargs="+", default=(), metavar="CAMERA",
+                        help="run as if these rig cameras were not there (an ablation, or a broken camera)")
     args = parser.parse_args(argv)
     if args.dataset is not None and args.out is None:
         parser.error("--out is required with a DATASET")
@@ -89,7 +93,8 @@ def _run(args: argparse.Namespace, context: ExitContext) -> int:
     from ampc_vo.tools.runner import run_sequence
     from ampc_vo.frontend.sources import open_sequence
 
-    sequence = open_sequence(dataset_path, config, args.start, args.stop, rig=args.rig, progress=False if args.no_progress else None)
+    sequence = open_sequence(dataset_path, config, args.start, args.stop, rig=args.rig, progress=False if args.no_progress else None,
+                             dropped_cameras=tuple(args.without_cameras))
     wheel = None
     if args.wheel_speed_from_groundtruth is not None:
         if sequence.truth is None:

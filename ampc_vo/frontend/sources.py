@@ -209,11 +209,13 @@ def default_config_path(path: str | Path | None) -> Path | None:
 
 
 def open_sequence(path: str | Path, config: VoConfig, start: int = 0, stop: int | None = None,
-                  rig: Rig | str | Path | None = None, progress: bool | None = None) -> Sequence:
+                  rig: Rig | str | Path | None = None, progress: bool | None = None,
+                  dropped_cameras: "tuple[str, ...]" = ()) -> Sequence:
     """Open a dataset folder, KITTI folder or recording as a :class:`Sequence` (module docstring)
     of its frames ``[start, stop)`` (default: all; frames keep their numbers, the ground truth stays
     whole). ``rig`` (a :class:`Rig` or a rig.yaml path) is needed for a recording, whose cameras it
-    names by topic; ``progress``: a progress bar over a long recording's index pass."""
+    names by topic; ``progress``: a progress bar over a long recording's index pass;
+    ``dropped_cameras``: rig cameras to run without (:func:`without_cameras`)."""
     from ampc_vo.io.bags import is_log
     from ampc_vo.io.wheel_speed import load_wheel_speed
 
@@ -223,10 +225,43 @@ def open_sequence(path: str | Path, config: VoConfig, start: int = 0, stop: int 
         if rig is not None:
             logger.warning("%s: --rig is for recordings; a folder runs with its own rig.yaml (the rig given is ignored)", path)
         sequence = _open_folder(path, config, start, stop)
+    if dropped_cameras:
+        sequence = without_cameras(sequence, dropped_cameras)
     wheel_speed = load_wheel_speed(config.scale.wheel_speed_source, path)
     if wheel_speed is not None:
         logger.info("%s: wheel speed, %d samples over %.1f s", path, len(wheel_speed), wheel_speed.timestamps[-1] - wheel_speed.timestamps[0])
     return dataclasses.replace(sequence, wheel_speed=wheel_speed)
+
+
+def without_cameras(sequence: Sequence, names: "list[str] | tuple[str, ...]") -> Sequence:
+    """``sequence`` as if the rig cameras ``names`` were not there (an ablation, or a camera known to
+    be broken): the rig without them, and their observations and images dropped from every frame
+    (an image source still decodes and tracks them: the frontend's per-camera state is left as it
+    is). :class:`DatasetError` for a name the rig does not have or when no tractor camera is left
+    (the tractor's motion, the frame of every estimate, would be unmeasured)."""
+    dropped = set(names)
+    unknown = sorted(dropped - set(sequence.rig.camera_names))
+    if unknown:
+        raise DatasetError(f"{sequence.path}: no camera {', '.join(unknown)} in the rig; its cameras are {', '.join(sequence.rig.camera_names)}")
+    cameras = tuple(camera for camera in sequence.rig.cameras if camera.name not in dropped)
+    if not any(camera.body == "tractor" for camera in cameras):
+        raise DatasetError(f"{sequence.path}: without {', '.join(sorted(dropped))} no tractor camera is left")
+    rig = dataclasses.replace(sequence.rig, cameras=cameras)
+    logger.info("%s: running without cameras %s (left: %s)", sequence.path, ", ".join(sorted(dropped)), ", ".join(rig.camera_names))
+
+    def steps() -> Iterator[FrameStep]:
+        stream = sequence.steps()
+        try:
+            for step in stream:
+                observations = dataclasses.replace(step.observations, cameras={name: camera for name, camera in step.observations.cameras.items() if name not in dropped})
+                images = None if step.images is None else {name: image for name, image in step.images.items() if name not in dropped}
+                yield dataclasses.replace(step, observations=observations, images=images)
+        finally:
+            close = getattr(stream, "close", None)
+            if close is not None:
+                close()
+
+    return dataclasses.replace(sequence, rig=rig, steps=steps)
 
 
 def _open_log(path: Path, config: VoConfig, start: int, stop: int | None, rig: Rig | str | Path | None, progress: bool | None) -> Sequence:
