@@ -248,6 +248,10 @@ class SmootherConfig:
     max_pair_gap: int = 1
     gate_px: float = 3.0
     max_window_tracks_per_camera: int = 150
+    # rolling-shutter rows in the epipolar factors: each observation with its row's exposure time
+    # (DESIGN 11, "Rolling shutter"); off: one capture time per image (the readout's measured cost is small,
+    # and the rows' extrapolation with the twist frozen at graph construction biased the hilly route's hitch)
+    rolling_shutter_rows: bool = False
     lm_max_iterations: int | None = None  # None: 10 (VoConfig.lm_iterations); LM stops earlier at lm_relative_error_tol
     lm_lambda_initial: float = 1.0
     lm_relative_error_tol: float = 1e-4

@@ -27,6 +27,7 @@ from factors.epipolar import (
     GeneralizedEpipolarFactor,
     StackedEpipolarFactor,
     body_correspondences,
+    body_correspondences_per_row,
     epipolar_error,
     stacked_epipolar_error,
 )
@@ -51,6 +52,7 @@ __all__ = [
     "WheelSpeedFactor",
     "articulated_epipolar_error",
     "body_correspondences",
+    "body_correspondences_per_row",
     "chord_error",
     "epipolar_error",
     "joint_loop_error",

@@ -35,7 +35,9 @@ class BodyCorrespondences:
     """Correspondences of one factor in the body frame (read-only arrays).
 
     ``bearings_i``/``bearings_j`` (N, 3): unit bearings ``R_body_camera @ bearing`` of views i and
-    j; ``center_i``/``center_j`` (3,): camera centres in the body frame (metres).
+    j; ``center_i``/``center_j`` (3,): camera centres in the body frame (metres), or (N, 3): one
+    per correspondence (:func:`body_correspondences_per_row`, rolling-shutter rows; only
+    :class:`StackedEpipolarFactor` takes those).
     """
 
     bearings_i: np.ndarray
@@ -76,6 +78,38 @@ def body_correspondences(
     )
 
 
+def body_correspondences_per_row(
+    rotations_i: np.ndarray,
+    centers_i: np.ndarray,
+    bearings_i: object,
+    rotations_j: np.ndarray,
+    centers_j: np.ndarray,
+    bearings_j: object,
+) -> BodyCorrespondences:
+    """:func:`body_correspondences` with one extrinsic per correspondence: ``rotations_*`` (N, 3, 3)
+    ``R_body_camera`` and ``centers_*`` (N, 3) of the camera when that observation was exposed (a
+    rolling-shutter row exposed after the image's first row, on a moving body; DESIGN 11). The
+    paper's GEC (eqs. (1), (2)) holds per ray: each Plücker line has its own centre. ``ValueError``
+    for shapes that do not match the bearings or values that are not finite."""
+    unit_i, unit_j = check_bearing_pair(bearings_i, bearings_j)
+    count = unit_i.shape[0]
+    arrays = {"rotations_i": rotations_i, "rotations_j": rotations_j, "centers_i": centers_i, "centers_j": centers_j}
+    for name, value in arrays.items():
+        value = np.asarray(value, dtype=float)
+        expected = (count, 3, 3) if name.startswith("rotations") else (count, 3)
+        if value.shape != expected:
+            raise ValueError(f"{name} must have shape {expected}, got {value.shape}")
+        if not np.all(np.isfinite(value)):
+            raise ValueError(f"{name} contains NaN or infinite values")
+        arrays[name] = value
+    return BodyCorrespondences(
+        bearings_i=_read_only(np.einsum("nab,nb->na", arrays["rotations_i"], unit_i)),
+        bearings_j=_read_only(np.einsum("nab,nb->na", arrays["rotations_j"], unit_j)),
+        center_i=_read_only(arrays["centers_i"]),
+        center_j=_read_only(arrays["centers_j"]),
+    )
+
+
 def epipolar_error(
     T_world_i: gtsam.Pose3,
     T_world_j: gtsam.Pose3,
@@ -84,10 +118,12 @@ def epipolar_error(
 ) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """Sampson GEC residuals (N,) of one body between two keyframes (module docstring) and, if
     ``jacobians``, ``[d s / d T_world_i, d s / d T_world_j]``, each (N, 6)."""
+    c = correspondences
+    if c.center_i.ndim != 1 or c.center_j.ndim != 1:
+        raise ValueError("correspondences with one camera centre per row: use StackedEpipolarFactor")
     T_i_j, between_i = relative_motion(T_world_i, T_world_j)
     rotation = T_i_j.rotation().matrix()
     translation = T_i_j.translation()
-    c = correspondences
     if not jacobians:
         return gec_sampson(c.bearings_i, c.bearings_j, rotation, translation, c.center_i, c.center_j), None
     residual, jacobian = gec_sampson_jacobian(c.bearings_i, c.bearings_j, rotation, translation, c.center_i, c.center_j)
@@ -256,8 +292,8 @@ class StackedEpipolarFactor(gtsam.CustomFactor):
         rows = {
             "bearings_i": _read_only(np.concatenate([block.correspondences.bearings_i for block in ordered])),
             "bearings_j": _read_only(np.concatenate([block.correspondences.bearings_j for block in ordered])),
-            "centers_i": _read_only(np.repeat(np.array([block.correspondences.center_i for block in ordered]), counts, axis=0)),
-            "centers_j": _read_only(np.repeat(np.array([block.correspondences.center_j for block in ordered]), counts, axis=0)),
+            "centers_i": _read_only(np.concatenate([np.broadcast_to(block.correspondences.center_i, (count, 3)) for block, count in zip(ordered, counts)])),
+            "centers_j": _read_only(np.concatenate([np.broadcast_to(block.correspondences.center_j, (count, 3)) for block, count in zip(ordered, counts)])),
             "sigma": _read_only(np.repeat(np.array([sigma_of_block[index] for index in order]), counts)),
             "pair": pair_of_row,
         }

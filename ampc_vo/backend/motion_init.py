@@ -33,6 +33,9 @@ from ampc_vo.solvers import SolverStatus, TractorMotionEstimate, ackermann_motio
 
 logger = logging.getLogger(__name__)
 
+# factor by which a measured chord may exceed, or fall short of, what the last keyframes' estimated
+# speed allows (MotionInitializer._reachable)
+_SPEED_SLACK = 2.0
 # yaw-change uncertainty given to the ground-plane chord: floor of the RANSAC's sigma, and the value
 # used when it has none (radians)
 _MIN_YAW_SIGMA = float(np.radians(0.01))
@@ -295,6 +298,21 @@ class MotionInitializer:
         least_distance = min(speed * dt - 0.5 * deceleration * dt**2, speed**2 / (2.0 * deceleration))
         return least_distance <= self.config.keyframes.standstill_distance_m
 
+    def _reachable(self, chord: float, sigma: float, speed: float, dt: float) -> bool:
+        """Whether a truck at ``speed`` (m/s) can cover an axle chord of ``chord`` +- ``sigma`` (m) in
+        ``dt`` seconds, braking or accelerating at most ``ransac.max_deceleration_mps2``: at least
+        ``min(v dt - a dt^2 / 2, v^2 / (2 a))``, at most ``v dt + a dt^2 / 2``, with 3 sigma of slack
+        and a factor :data:`_SPEED_SLACK` either way, since ``speed`` is itself an estimate (its
+        scale may drift by several %: a tight bound rejected right chords and kept the drift, on the
+        realistic motorway's images 229 of 1000 keyframes). It drops gross outliers: road points on a
+        vehicle alongside or the trailer (0.155 m where the truck drove 4.8 m)."""
+        if dt <= 0.0:
+            return True
+        rate = self.config.ransac.max_deceleration_mps2
+        least = min(speed * dt - 0.5 * rate * dt**2, speed**2 / (2.0 * rate)) / _SPEED_SLACK
+        most = (speed * dt + 0.5 * rate * dt**2) * _SPEED_SLACK
+        return least - 3.0 * sigma <= abs(chord) <= most + 3.0 * sigma
+
     def _stereo_motion(self, first: FrameObservations, second: FrameObservations, T_guess: np.ndarray) -> StereoMotion | None:
         """Tractor yaw change and axle chord from stereo points (:func:`ampc_vo.scale.stereo.stereo_motion`)
         when ``scale.stereo_chord`` is on, the measurement succeeds and the tractor moved (the 2-point
@@ -334,15 +352,17 @@ class MotionInitializer:
         return _ackermann_like(estimate.T_i_j, estimate.yaw_change, chord, self.rig.axle_x("tractor"))
 
     def keyframe(self, first: FrameObservations, second: FrameObservations, tractor: TractorMotion,
-                 hitch_prior: float | None, predicted_trailer: np.ndarray | None = None) -> MotionInit:
-        """The :class:`MotionInit` of a new keyframe given its tractor motion (see :meth:`tractor`)."""
+                 hitch_prior: float | None, predicted_trailer: np.ndarray | None = None, speed_before: float | None = None) -> MotionInit:
+        """The :class:`MotionInit` of a new keyframe given its tractor motion (see :meth:`tractor`);
+        ``speed_before`` (m/s, the last keyframes' signed speed) bounds the chord a measurement may
+        give (:meth:`_reachable`)."""
         tractor_pairs = camera_pairs(self.rig, "tractor", first, second)
         inliers = {}
         if tractor.status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE, MotionStatus.STANDSTILL):
             inliers = _inlier_tracks(tractor_pairs, tractor.estimate.inlier_masks)
         if not self.use_trailer:
             return self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=inliers, scale_chord=tractor.scale_chord), tractor_pairs,
-                                           first, second, tractor.estimate.yaw_sigma)
+                                           first, second, tractor.estimate.yaw_sigma, speed_before)
         hitch_prev = hitch = None
         trailer_status = MotionStatus.TOO_FEW_TRACKS
         trailer_pairs = camera_pairs(self.rig, "trailer", first, second)
@@ -397,7 +417,7 @@ class MotionInitializer:
                     trailer_status = MotionStatus.TOO_FEW_TRACKS if trailer_status is not MotionStatus.STANDSTILL else trailer_status
                     T_trailer = predicted
         return self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer, inlier_tracks=inliers,
-                                                  scale_chord=tractor.scale_chord), tractor_pairs, first, second, tractor.estimate.yaw_sigma)
+                                                  scale_chord=tractor.scale_chord), tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_before)
 
     def measured_chord(self, first: FrameObservations, second: FrameObservations, tractor: TractorMotion) -> tuple[float, float] | None:
         """The metric tractor axle chord ``(chord m, sigma m)`` of a motion measured by the ground
@@ -409,14 +429,16 @@ class MotionInitializer:
         init = MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=_inlier_tracks(pairs, tractor.estimate.inlier_masks), scale_chord=tractor.scale_chord)
         return self._with_ground_scale(init, pairs, first, second, tractor.estimate.yaw_sigma).scale_chord
 
-    def _with_ground_scale(self, init: MotionInit, pairs: list[CameraPairs], first: FrameObservations, second: FrameObservations, yaw_sigma: float) -> MotionInit:
+    def _with_ground_scale(self, init: MotionInit, pairs: list[CameraPairs], first: FrameObservations, second: FrameObservations, yaw_sigma: float,
+                           speed_before: float | None = None) -> MotionInit:
         """``init`` with ``scale_chord`` from the ground plane (``scale.ground_plane``): the metric
         chord of the tractor axle measured from road points of the tractor cameras
         (:mod:`ampc_vo.scale.ground`), given the final tractor motion's rotation and direction and
         the RANSAC's ``yaw_sigma`` (radians; a side camera's chord is sensitive to yaw errors);
         ``pairs``: the tractor cameras' correspondences of ``first`` and ``second``.
         An existing ``scale_chord`` (stereo) is fused with it (inverse variance); a scale-unobservable
-        motion is re-initialised with the measured chord."""
+        motion is re-initialised with the measured chord. A chord the truck cannot have driven from
+        ``speed_before`` within the pair is dropped (:meth:`_reachable`)."""
         if not self.config.scale.ground_plane or init.tractor_status not in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE):
             return init
         correspondences = []
@@ -435,6 +457,11 @@ class MotionInitializer:
             return init
         logger.debug("frames %d-%d: ground-plane chord %.4f +- %.4f m from %d road points (yaw sigma %.3f deg)",
                      first.frame, second.frame, measured.chord, measured.sigma, measured.inlier_count, np.degrees(yaw_sigma))
+        if speed_before is not None and not self._reachable(measured.chord, measured.sigma, abs(speed_before), interval):
+            logger.info("frames %d-%d: ground-plane chord %.2f +- %.2f m from %d road points dropped: a truck at %.1f m/s cannot "
+                        "cover that in %.2f s (ransac.max_deceleration_mps2; road points on traffic or the trailer?)",
+                        first.frame, second.frame, measured.chord, measured.sigma, measured.inlier_count, abs(speed_before), interval)
+            return init
         chord, sigma = measured.chord, measured.sigma
         if init.scale_chord is not None:  # independent measurements of the same chord
             other_chord, other_sigma = init.scale_chord

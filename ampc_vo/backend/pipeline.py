@@ -204,7 +204,8 @@ class OdometryPipeline:
 
     def _add_keyframe(self, frame: FrameObservations, tractor: TractorMotion, elapsed: float) -> list[KeyframeEstimate]:
         predicted_trailer = self._predicted(elapsed, self._trailer_velocity) if self._trailer_velocity is not None else None
-        init = self.initializer.keyframe(self._last_keyframe, frame, tractor, self._hitch, predicted_trailer)
+        init = self.initializer.keyframe(self._last_keyframe, frame, tractor, self._hitch, predicted_trailer,
+                                         speed_before=self._velocity[1] if self._velocity is not None else None)
         chord = self._wheel_chord(self._last_keyframe, frame)
         if chord is not None:
             init = dataclasses.replace(init, wheel_chord=chord)

@@ -104,6 +104,26 @@ def planar_twist(T_earlier_later: np.ndarray, dt: float) -> np.ndarray:
     return twist
 
 
+def planar_motions(twist: np.ndarray, delays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``Exp(twist * delay)`` for each delay (N,) of a planar twist (:func:`planar_twist`: yaw rate
+    ``twist[2]``, horizontal velocity ``twist[3:5]``; the other parts are ignored): rotations
+    (N, 3, 3) about z by ``a = omega_z delay`` and translations (N, 3) along the constant-velocity
+    arc, ``V(a) v delay`` with ``V(a) = [[sin a / a, -(1 - cos a) / a], [(1 - cos a) / a, sin a / a]]``
+    (GTSAM's ``Pose3.Expmap`` of a planar twist)."""
+    delays = np.asarray(delays, dtype=float)
+    angle = twist[2] * delays
+    cos, sin = np.cos(angle), np.sin(angle)
+    small = np.abs(angle) < 1e-6
+    safe = np.where(small, 1.0, angle)
+    along = np.where(small, 1.0 - angle * angle / 6.0, sin / safe)  # sin a / a
+    across = np.where(small, 0.5 * angle, (1.0 - cos) / safe)      # (1 - cos a) / a
+    vx, vy = twist[3] * delays, twist[4] * delays
+    translations = np.stack([along * vx - across * vy, across * vx + along * vy, np.zeros_like(angle)], axis=1)
+    rotations = np.zeros((delays.shape[0], 3, 3))
+    rotations[:, 0, 0], rotations[:, 0, 1], rotations[:, 1, 0], rotations[:, 1, 1], rotations[:, 2, 2] = cos, -sin, sin, cos, 1.0
+    return rotations, translations
+
+
 @dataclass(frozen=True)
 class MotionInit:
     """Initial values for a new keyframe relative to the previous one (from the minimal solvers).
@@ -337,7 +357,7 @@ class ArticulatedSmoother:
         """An ill-conditioned window (e.g. a keyframe whose factors were all rejected): anchor the new
         keyframe to its initial values with moderate priors and optimise again (logged)."""
         logger.warning("frame %d: smoother update failed (%s); anchoring the keyframe to its initial motion",
-                       keyframe.frame, str(error).strip().splitlines()[0])
+                       keyframe.frame, " ".join(str(error).split())[:240])
         k = keyframe.index
         anchor = gtsam.NonlinearFactorGraph()
         sigmas = _pose_sigmas(np.radians(0.5), 0.05)
@@ -687,8 +707,6 @@ class ArticulatedSmoother:
     def _add_epipolar_factors(self, body: str, keyframe: _Keyframe, pending: _Pending, blocks: list[tuple[EpipolarBlock, float]]) -> bool:
         """GEC blocks between keyframe k and the earlier keyframes of the window (module docstring),
         appended to ``blocks``. Returns True when at least one block links k to k-1."""
-        from factors import body_correspondences
-
         config = self.config
         key = X if body == "tractor" else Y
         k = keyframe.index
@@ -742,21 +760,57 @@ class ArticulatedSmoother:
                     index_j, index_k = index_j[valid], index_k[valid]
                     if index_j.size < config.keyframes.min_tracks:
                         continue
-                    bearings_j, bearings_k = first.bearings[index_j], second.bearings[index_k]
                     T_body_camera_j, T_body_camera_k = extrinsics_j[camera_j.name], extrinsics_k[camera_k.name]
-                    keep = self._gate(camera_j, camera_k, bearings_j, bearings_k, T_j_k, gate_px, T_body_camera_j, T_body_camera_k)
+                    keep = self._gate(camera_j, camera_k, first.bearings[index_j], second.bearings[index_k], T_j_k, gate_px, T_body_camera_j, T_body_camera_k)
                     if keep.sum() < config.keyframes.min_tracks:
                         continue
-                    bearings_j, bearings_k = bearings_j[keep], bearings_k[keep]
+                    index_j, index_k = index_j[keep], index_k[keep]
                     cap = config.smoother.max_window_tracks_per_camera
-                    if bearings_j.shape[0] > cap:
-                        chosen = np.sort(self._rng.choice(bearings_j.shape[0], cap, replace=False))
-                        bearings_j, bearings_k = bearings_j[chosen], bearings_k[chosen]
-                    correspondences = body_correspondences(T_body_camera_j, bearings_j, bearings_k, T_body_camera_k)
+                    if index_j.shape[0] > cap:
+                        chosen = np.sort(self._rng.choice(index_j.shape[0], cap, replace=False))
+                        index_j, index_k = index_j[chosen], index_k[chosen]
+                    correspondences = self._correspondences(earlier, camera_j, first, index_j, twist_j, keyframe, camera_k, second, index_k, twist_k,
+                                                            T_body_camera_j, T_body_camera_k)
                     sigma = 0.5 * (self._gec_sigma(camera_j) + self._gec_sigma(camera_k))
                     blocks.append((EpipolarBlock(key(j), key(k), correspondences), sigma))
                     linked_previous |= j == k - 1
         return linked_previous
+
+    @staticmethod
+    def _row_extrinsics(keyframe: _Keyframe, camera: Camera, observations: CameraObservations, index: np.ndarray,
+                        twist: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
+        """``R_body_camera`` (N, 3, 3) and centre (N, 3) of a rolling-shutter ``camera`` when each
+        observation ``index`` was exposed: the image's capture time (:meth:`_capture_extrinsic`) plus
+        its row's readout (``Camera.row_times``), on the body's constant-velocity arc through the
+        keyframe (:func:`planar_motions` of its planar ``twist``). None for a global shutter or
+        without a twist (the per-camera extrinsic then holds for every row)."""
+        if camera.readout_time <= 0.0 or twist is None:
+            return None
+        delays = keyframe.observations.camera_timestamp(camera.name) - keyframe.timestamp + camera.row_times(observations.pixels[index])
+        rotations, translations = planar_motions(twist, delays)
+        return rotations @ camera.T_body_camera[:3, :3], rotations @ camera.T_body_camera[:3, 3] + translations
+
+    def _correspondences(self, earlier: _Keyframe, camera_j: Camera, first: CameraObservations, index_j: np.ndarray, twist_j: np.ndarray | None,
+                         keyframe: _Keyframe, camera_k: Camera, second: CameraObservations, index_k: np.ndarray, twist_k: np.ndarray | None,
+                         T_body_camera_j: np.ndarray, T_body_camera_k: np.ndarray) -> object:
+        """Body-frame correspondences of one camera pair between keyframes j and k: with the
+        extrinsics at the cameras' capture times, or, for rolling-shutter cameras with
+        ``smoother.rolling_shutter_rows``, at each observation's row time
+        (:meth:`_row_extrinsics`: one GEC centre per ray)."""
+        from factors import body_correspondences, body_correspondences_per_row
+
+        rows_j = rows_k = None
+        if self.config.smoother.rolling_shutter_rows:
+            rows_j = self._row_extrinsics(earlier, camera_j, first, index_j, twist_j)
+            rows_k = self._row_extrinsics(keyframe, camera_k, second, index_k, twist_k)
+        if rows_j is None and rows_k is None:
+            return body_correspondences(T_body_camera_j, first.bearings[index_j], second.bearings[index_k], T_body_camera_k)
+        count = index_j.shape[0]
+        if rows_j is None:
+            rows_j = (np.broadcast_to(T_body_camera_j[:3, :3], (count, 3, 3)), np.broadcast_to(T_body_camera_j[:3, 3], (count, 3)))
+        if rows_k is None:
+            rows_k = (np.broadcast_to(T_body_camera_k[:3, :3], (count, 3, 3)), np.broadcast_to(T_body_camera_k[:3, 3], (count, 3)))
+        return body_correspondences_per_row(rows_j[0], rows_j[1], first.bearings[index_j], rows_k[0], rows_k[1], second.bearings[index_k])
 
     @staticmethod
     def _capture_extrinsic(keyframe: _Keyframe, camera: Camera, twist: np.ndarray | None) -> np.ndarray:

@@ -132,3 +132,25 @@ def test_rebuilding_a_motion_with_another_chord_keeps_its_attitude_change() -> N
     np.testing.assert_allclose(rebuilt[:3, :3], pitched[:3, :3], atol=1e-12)
     np.testing.assert_allclose(rebuilt[:3, 3], make_pose(*attitude_motion(0.03, 2.2, 0.0, 0.0, -0.3))[:3, 3], atol=1e-12)
     np.testing.assert_allclose(_ackermann_like(None, 0.03, 2.2, -0.3), make_pose(*attitude_motion(0.03, 2.2, 0.0, 0.0, -0.3)), atol=1e-12)
+
+
+@pytest.mark.parametrize("chord, kept", [(0.155, False), (2.4, True), (6.0, False), (2.2, True), (1.5, True), (4.4, True)])
+def test_a_ground_chord_the_truck_cannot_have_driven_is_dropped(monkeypatch, chord, kept) -> None:
+    """At an estimated 24 m/s a pair of 0.1 s covers 2.4 m, give or take 8 m/s^2 of braking or
+    acceleration (2.36-2.44 m), a factor 2 for the estimated speed's own error, and 3 sigma: road
+    points on a vehicle driving alongside (the realistic motorway: 0.155 +- 0.08 m, which collapsed
+    the window's scale) or a chord far too long are dropped, with a log line; plausible ones are
+    kept. Without the speed before (a start) nothing is dropped."""
+    from ampc_vo.scale.ground import GroundChord, GroundScaleStatus
+
+    monkeypatch.setattr("ampc_vo.backend.motion_init.ground_plane_chord",
+                        lambda *args, **kwargs: GroundChord(GroundScaleStatus.OK, chord, 0.08, (np.ones(9, bool),), 9))
+    initializer = MotionInitializer(RIG, VoConfig(mode="tractor_only"))
+    first, second = _pair(np.radians(0.3), 2.4, np.random.default_rng(5))
+    predicted = make_pose(*ackermann_motion(np.radians(0.3), 2.4, RIG.axle_x("tractor")))
+    tractor = initializer.tractor(first, second, predicted, speed_before=24.0)
+    init = initializer.keyframe(first, second, tractor, None, speed_before=24.0)
+    assert (init.scale_chord is not None) is kept
+    if kept:
+        assert init.scale_chord[0] == pytest.approx(chord)
+    assert initializer.keyframe(first, second, tractor, None).scale_chord is not None

@@ -223,3 +223,19 @@ def test_planar_twist_keeps_yaw_rate_and_horizontal_velocity_only():
     full = gtsam.Pose3.Logmap(gtsam.Pose3(T_tilted)) / dt
     np.testing.assert_allclose(tilted[[2, 3, 4]], full[[2, 3, 4]])
     assert np.abs(full[[0, 1, 5]]).min() > 0.01  # the dropped parts were there
+
+
+def test_planar_motions_are_the_exponential_of_the_planar_twist_at_each_delay():
+    """The rolling-shutter rows' extrinsics (DESIGN 11): ``Exp(twist * delay)`` per row, vectorised,
+    equal to GTSAM's ``Pose3.Expmap`` (small delays, a zero delay, a long one, turning and not)."""
+    import gtsam
+
+    from ampc_vo.backend.smoother import planar_motions
+
+    delays = np.array([0.0, 1e-9, 0.004, 0.03, -0.05, 1.5])
+    for twist in (np.array([0.0, 0.0, 0.35, 22.0, -0.6, 0.0]), np.array([0.0, 0.0, 0.0, 3.0, 0.1, 0.0])):
+        rotations, translations = planar_motions(twist, delays)
+        for index, delay in enumerate(delays):
+            expected = gtsam.Pose3.Expmap(twist * delay).matrix()
+            np.testing.assert_allclose(rotations[index], expected[:3, :3], atol=1e-12)
+            np.testing.assert_allclose(translations[index], expected[:3, 3], atol=1e-12)

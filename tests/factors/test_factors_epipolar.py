@@ -304,12 +304,8 @@ def test_stacked_factor_robust_cost_is_the_sum_of_huber_losses_with_huber_gradie
     np.testing.assert_allclose(gradient_stacked, gradient_blocks, atol=1e-9 * np.max(np.abs(gradient_blocks)))
 
 
-def test_stacked_factor_gradient_matches_numerical_derivative_of_its_error():
-    from factors import StackedEpipolarFactor
-
-    poses, _, blocks = _stacked_scenario(seed=9)
-    factor = StackedEpipolarFactor(blocks, [SIGMA, 2 * SIGMA, SIGMA, 1.5 * SIGMA], huber_k=1.345)
-    values = _values(*poses)
+def _assert_gradient_matches_numerical(factor, values: gtsam.Values, poses) -> None:
+    """The factor's gradient (its linearisation's ``J^T r``) against numerical derivatives of its error per pose."""
     matrix, rhs = factor.linearize(values).jacobian()
     gradient = -matrix.T @ rhs  # d error / d xi = J^T r (gtsam's rhs is -r)
     for position, key in enumerate(factor.keys()):
@@ -320,6 +316,15 @@ def test_stacked_factor_gradient_matches_numerical_derivative_of_its_error():
 
         numeric = numericalDerivative11(error_of, poses[key], 1e-6)
         assert_jacobian_close(gradient[None, 6 * position:6 * position + 6], numeric, rtol=1e-4)
+
+
+def test_stacked_factor_gradient_matches_numerical_derivative_of_its_error():
+    from factors import StackedEpipolarFactor
+
+    poses, _, blocks = _stacked_scenario(seed=9)
+    factor = StackedEpipolarFactor(blocks, [SIGMA, 2 * SIGMA, SIGMA, 1.5 * SIGMA], huber_k=1.345)
+    values = _values(*poses)
+    _assert_gradient_matches_numerical(factor, values, poses)
 
 
 def test_stacked_factor_rejects_bad_input():
@@ -349,3 +354,67 @@ def test_evaluation_cache_returns_identical_results_and_follows_value_changes():
     fresh = StackedEpipolarFactor(blocks, SIGMA)
     np.testing.assert_array_equal(fresh.unwhitenedError(moved), changed)
     np.testing.assert_array_equal(factor.unwhitenedError(values), first)
+
+
+# ---------------------------------------------------------------------- rolling shutter: one centre per ray
+def _rolling_shutter_block(rng, T_i_j, T_body_camera, count=25, speed=15.0, yaw_rate=0.2, readout=0.03):
+    """Points seen by one camera whose rows are exposed at different times: row r of view i at
+    ``readout r``, on a body moving at ``speed`` along x and turning at ``yaw_rate``. Returns the
+    per-row extrinsics of both views and the camera-frame bearings seen from them."""
+    from ampc_vo.backend.smoother import planar_motions
+
+    twist = np.array([0.0, 0.0, yaw_rate, speed, 0.0, 0.0])
+    points_i = rng.uniform([10.0, -20.0, -2.0], [40.0, 20.0, 8.0], (count, 3))
+    rows_i, rows_j = rng.uniform(0.0, 1.0, count), rng.uniform(0.0, 1.0, count)
+    extrinsics = []
+    bearings = []
+    for rows, points in ((rows_i, points_i), (rows_j, (points_i - T_i_j[:3, 3]) @ T_i_j[:3, :3])):
+        motions, shifts = planar_motions(twist, readout * rows)
+        rotations = motions @ T_body_camera[:3, :3]
+        centers = motions @ T_body_camera[:3, 3] + shifts
+        in_camera = np.einsum("nba,nb->na", rotations, points - centers)
+        extrinsics.append((rotations, centers))
+        bearings.append(in_camera / np.linalg.norm(in_camera, axis=1, keepdims=True))
+    return extrinsics, bearings
+
+
+def test_per_row_centres_are_zero_at_the_truth_where_one_extrinsic_is_not():
+    """A rolling-shutter camera on a truck at 15 m/s: with each row's own extrinsic the GEC is zero at
+    the true motion, with the image's one extrinsic it is not (0.45 m of travel over the readout)."""
+    from factors import EpipolarBlock, StackedEpipolarFactor, body_correspondences_per_row
+
+    rng = np.random.default_rng(4)
+    T_world_i = random_pose(rng, 0.1, 5.0)
+    T_i_j = make_pose(rot_z(0.02), np.array([1.5, 0.02, 0.0]))
+    T_world_j = T_world_i.compose(gtsam.Pose3(T_i_j))
+    camera = _camera(0.0, 0.1, [2.0, 0.3, 2.5])
+    (rows_i, rows_j), (bearings_i, bearings_j) = _rolling_shutter_block(rng, T_i_j, camera)
+    per_row = body_correspondences_per_row(rows_i[0], rows_i[1], bearings_i, rows_j[0], rows_j[1], bearings_j)
+    assert per_row.center_i.shape == (25, 3)
+    values = _values(T_world_i, T_world_j)
+    exact = StackedEpipolarFactor([EpipolarBlock(0, 1, per_row)], SIGMA, huber_k=None)
+    one = StackedEpipolarFactor([EpipolarBlock(0, 1, body_correspondences(camera, bearings_i, bearings_j))], SIGMA, huber_k=None)
+    assert exact.error(values) < 1e-16
+    assert one.error(values) > 1.0  # more than a sigma's worth of residual per block
+    with pytest.raises(ValueError, match="StackedEpipolarFactor"):
+        epipolar_error(T_world_i, T_world_j, per_row)
+    with pytest.raises(ValueError, match="centers_j"):
+        body_correspondences_per_row(rows_i[0], rows_i[1], bearings_i, rows_j[0], rows_j[1][:3], bearings_j)
+
+
+def test_stacked_factor_with_per_row_centres_matches_numerical_derivatives():
+    """The per-row centres (rolling shutter) beside ordinary blocks: the Jacobians of the compressed
+    factor against numerical derivatives of its error."""
+    from factors import EpipolarBlock, StackedEpipolarFactor, body_correspondences_per_row
+
+    poses, cameras, blocks = _stacked_scenario(seed=13)
+    rng = np.random.default_rng(13)
+    T_i_j = poses[0].between(poses[2]).matrix()
+    (rows_i, rows_j), (bearings_i, bearings_j) = _rolling_shutter_block(rng, T_i_j, cameras[1], count=11)
+    bearings_j = bearings_j + rng.normal(0.0, 2e-3, bearings_j.shape)
+    per_row = body_correspondences_per_row(rows_i[0], rows_i[1], bearings_i, rows_j[0], rows_j[1], bearings_j)
+    factor = StackedEpipolarFactor(blocks + [EpipolarBlock(0, 2, per_row)], SIGMA, huber_k=1.345)
+    values = _values(*poses)
+    baselines = per_row.center_j @ T_i_j[:3, :3].T + T_i_j[:3, 3] - per_row.center_i  # one per row
+    assert np.linalg.norm(baselines, axis=1).min() > 1.0 and np.ptp(baselines, axis=0).max() > 0.1
+    _assert_gradient_matches_numerical(factor, values, poses)
