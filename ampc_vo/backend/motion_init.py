@@ -204,6 +204,12 @@ class TractorMotion:
         return float(np.arctan2(self.T_i_j[1, 0], self.T_i_j[0, 0]))
 
 
+def _least_distance(speed: float, dt: float, deceleration: float) -> float:
+    """The least distance (m) a truck at ``speed`` (m/s) covers in ``dt`` seconds braking at
+    ``deceleration`` (m/s^2): ``min(v dt - a dt^2 / 2, v^2 / (2 a))`` (it may come to rest)."""
+    return min(speed * dt - 0.5 * deceleration * dt**2, speed**2 / (2.0 * deceleration))
+
+
 class MotionInitializer:
     """Runs the RANSAC estimators between a keyframe and a later frame (module docstring)."""
 
@@ -294,9 +300,7 @@ class MotionInitializer:
         v0^2 / (2 a))``, which must stay within the standstill distance."""
         if dt <= 0.0:
             return True
-        deceleration = self.config.ransac.max_deceleration_mps2
-        least_distance = min(speed * dt - 0.5 * deceleration * dt**2, speed**2 / (2.0 * deceleration))
-        return least_distance <= self.config.keyframes.standstill_distance_m
+        return _least_distance(speed, dt, self.config.ransac.max_deceleration_mps2) <= self.config.keyframes.standstill_distance_m
 
     def _reachable(self, chord: float, sigma: float, speed: float, dt: float) -> bool:
         """Whether a truck at ``speed`` (m/s) can cover an axle chord of ``chord`` +- ``sigma`` (m) in
@@ -309,7 +313,7 @@ class MotionInitializer:
         if dt <= 0.0:
             return True
         rate = self.config.ransac.max_deceleration_mps2
-        least = min(speed * dt - 0.5 * rate * dt**2, speed**2 / (2.0 * rate)) / _SPEED_SLACK
+        least = _least_distance(speed, dt, rate) / _SPEED_SLACK
         most = (speed * dt + 0.5 * rate * dt**2) * _SPEED_SLACK
         return least - 3.0 * sigma <= abs(chord) <= most + 3.0 * sigma
 

@@ -176,11 +176,16 @@ class OdometryPipeline:
         if wheel is not None:  # wheel odometry measures the chord: the prediction takes it
             predicted, prediction_sigma = _with_chord_length(predicted, wheel), self.config.scale.wheel_speed_sigma_m
         tractor = self.initializer.tractor(self._last_keyframe, frame, predicted, prediction_sigma if self._velocity is not None else None,
-                                           speed_before=self._velocity[1] if self._velocity is not None else None, hitch=self._hitch)
+                                           speed_before=self._speed_before, hitch=self._hitch)
         decision = self.policy.decide(tractor, elapsed)
         if not decision.is_keyframe:
             return []
         return self._add_keyframe(frame, tractor, elapsed)
+
+    @property
+    def _speed_before(self) -> float | None:
+        """The tractor's signed speed over the last keyframe interval (m/s; None before one is known)."""
+        return float(self._velocity[1]) if self._velocity is not None else None
 
     def _clearly_no_keyframe(self, frame: FrameObservations, predicted: np.ndarray, elapsed: float) -> bool:
         """True when the constant-velocity prediction is far below the keyframe thresholds
@@ -204,8 +209,7 @@ class OdometryPipeline:
 
     def _add_keyframe(self, frame: FrameObservations, tractor: TractorMotion, elapsed: float) -> list[KeyframeEstimate]:
         predicted_trailer = self._predicted(elapsed, self._trailer_velocity) if self._trailer_velocity is not None else None
-        init = self.initializer.keyframe(self._last_keyframe, frame, tractor, self._hitch, predicted_trailer,
-                                         speed_before=self._velocity[1] if self._velocity is not None else None)
+        init = self.initializer.keyframe(self._last_keyframe, frame, tractor, self._hitch, predicted_trailer, speed_before=self._speed_before)
         chord = self._wheel_chord(self._last_keyframe, frame)
         if chord is not None:
             init = dataclasses.replace(init, wheel_chord=chord)

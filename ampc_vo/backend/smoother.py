@@ -71,7 +71,7 @@ from ampc_vo.geometry import make_pose, relative_pose, rot_z, wrap_angle, yaw_of
 from ampc_vo.observations import CameraObservations, FrameObservations, match_tracks, usable_landmarks
 from ampc_vo.rig import Camera, Rig
 from factors._custom import POSE, SCALAR
-from factors.epipolar import EpipolarBlock
+from factors.epipolar import EpipolarBlock, body_correspondences, body_correspondences_per_row
 from factors.hitch_limit import HitchLimitFactor
 from factors.joint_loop import fifth_wheel_error
 from factors.nonholonomic import nonholonomic_error
@@ -769,48 +769,40 @@ class ArticulatedSmoother:
                     if index_j.shape[0] > cap:
                         chosen = np.sort(self._rng.choice(index_j.shape[0], cap, replace=False))
                         index_j, index_k = index_j[chosen], index_k[chosen]
-                    correspondences = self._correspondences(earlier, camera_j, first, index_j, twist_j, keyframe, camera_k, second, index_k, twist_k,
-                                                            T_body_camera_j, T_body_camera_k)
+                    correspondences = self._correspondences((camera_j, first, index_j, twist_j, T_body_camera_j),
+                                                            (camera_k, second, index_k, twist_k, T_body_camera_k))
                     sigma = 0.5 * (self._gec_sigma(camera_j) + self._gec_sigma(camera_k))
                     blocks.append((EpipolarBlock(key(j), key(k), correspondences), sigma))
                     linked_previous |= j == k - 1
         return linked_previous
 
     @staticmethod
-    def _row_extrinsics(keyframe: _Keyframe, camera: Camera, observations: CameraObservations, index: np.ndarray,
-                        twist: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
-        """``R_body_camera`` (N, 3, 3) and centre (N, 3) of a rolling-shutter ``camera`` when each
-        observation ``index`` was exposed: the image's capture time (:meth:`_capture_extrinsic`) plus
-        its row's readout (``Camera.row_times``), on the body's constant-velocity arc through the
-        keyframe (:func:`planar_motions` of its planar ``twist``). None for a global shutter or
-        without a twist (the per-camera extrinsic then holds for every row)."""
+    def _row_extrinsics(camera: Camera, observations: CameraObservations, index: np.ndarray, twist: np.ndarray | None,
+                        T_body_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``R_body_camera`` (N, 3, 3) and centre (N, 3) of ``camera`` when each observation
+        ``index`` was exposed: ``T_body_camera`` at the image's capture time
+        (:meth:`_capture_extrinsic`) moved on along the body's constant-velocity arc by its row's
+        readout (``Camera.row_times``; :func:`planar_motions` of the planar ``twist``, which composes:
+        ``Exp((delta + r) xi) = Exp(r xi) Exp(delta xi)``). A global shutter, or no twist: that one
+        extrinsic for every row."""
+        count = index.shape[0]
         if camera.readout_time <= 0.0 or twist is None:
-            return None
-        delays = keyframe.observations.camera_timestamp(camera.name) - keyframe.timestamp + camera.row_times(observations.pixels[index])
-        rotations, translations = planar_motions(twist, delays)
-        return rotations @ camera.T_body_camera[:3, :3], rotations @ camera.T_body_camera[:3, 3] + translations
+            return np.broadcast_to(T_body_camera[:3, :3], (count, 3, 3)), np.broadcast_to(T_body_camera[:3, 3], (count, 3))
+        rotations, translations = planar_motions(twist, camera.row_times(observations.pixels[index]))
+        return rotations @ T_body_camera[:3, :3], rotations @ T_body_camera[:3, 3] + translations
 
-    def _correspondences(self, earlier: _Keyframe, camera_j: Camera, first: CameraObservations, index_j: np.ndarray, twist_j: np.ndarray | None,
-                         keyframe: _Keyframe, camera_k: Camera, second: CameraObservations, index_k: np.ndarray, twist_k: np.ndarray | None,
-                         T_body_camera_j: np.ndarray, T_body_camera_k: np.ndarray) -> object:
-        """Body-frame correspondences of one camera pair between keyframes j and k: with the
-        extrinsics at the cameras' capture times, or, for rolling-shutter cameras with
-        ``smoother.rolling_shutter_rows``, at each observation's row time
+    def _correspondences(self, view_j: tuple, view_k: tuple) -> object:
+        """Body-frame correspondences of one camera pair between keyframes j and k, each view
+        ``(camera, observations, index, twist, T_body_camera at its capture time)``: with those
+        extrinsics, or with ``smoother.rolling_shutter_rows`` at each observation's row time
         (:meth:`_row_extrinsics`: one GEC centre per ray)."""
-        from factors import body_correspondences, body_correspondences_per_row
-
-        rows_j = rows_k = None
-        if self.config.smoother.rolling_shutter_rows:
-            rows_j = self._row_extrinsics(earlier, camera_j, first, index_j, twist_j)
-            rows_k = self._row_extrinsics(keyframe, camera_k, second, index_k, twist_k)
-        if rows_j is None and rows_k is None:
+        (camera_j, first, index_j, twist_j, T_body_camera_j), (camera_k, second, index_k, twist_k, T_body_camera_k) = view_j, view_k
+        rolling = camera_j.readout_time > 0.0 or camera_k.readout_time > 0.0
+        if not self.config.smoother.rolling_shutter_rows or not rolling:
             return body_correspondences(T_body_camera_j, first.bearings[index_j], second.bearings[index_k], T_body_camera_k)
-        count = index_j.shape[0]
-        if rows_j is None:
-            rows_j = (np.broadcast_to(T_body_camera_j[:3, :3], (count, 3, 3)), np.broadcast_to(T_body_camera_j[:3, 3], (count, 3)))
-        if rows_k is None:
-            rows_k = (np.broadcast_to(T_body_camera_k[:3, :3], (count, 3, 3)), np.broadcast_to(T_body_camera_k[:3, 3], (count, 3)))
-        return body_correspondences_per_row(rows_j[0], rows_j[1], first.bearings[index_j], rows_k[0], rows_k[1], second.bearings[index_k])
+        rotations_j, centers_j = self._row_extrinsics(camera_j, first, index_j, twist_j, T_body_camera_j)
+        rotations_k, centers_k = self._row_extrinsics(camera_k, second, index_k, twist_k, T_body_camera_k)
+        return body_correspondences_per_row(rotations_j, centers_j, first.bearings[index_j], rotations_k, centers_k, second.bearings[index_k])
 
     @staticmethod
     def _capture_extrinsic(keyframe: _Keyframe, camera: Camera, twist: np.ndarray | None) -> np.ndarray:

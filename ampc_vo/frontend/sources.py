@@ -210,7 +210,7 @@ def default_config_path(path: str | Path | None) -> Path | None:
 
 def open_sequence(path: str | Path, config: VoConfig, start: int = 0, stop: int | None = None,
                   rig: Rig | str | Path | None = None, progress: bool | None = None,
-                  dropped_cameras: "tuple[str, ...]" = ()) -> Sequence:
+                  dropped_cameras: tuple[str, ...] = ()) -> Sequence:
     """Open a dataset folder, KITTI folder or recording as a :class:`Sequence` (module docstring)
     of its frames ``[start, stop)`` (default: all; frames keep their numbers, the ground truth stays
     whole). ``rig`` (a :class:`Rig` or a rig.yaml path) is needed for a recording, whose cameras it
@@ -233,7 +233,7 @@ def open_sequence(path: str | Path, config: VoConfig, start: int = 0, stop: int 
     return dataclasses.replace(sequence, wheel_speed=wheel_speed)
 
 
-def without_cameras(sequence: Sequence, names: "list[str] | tuple[str, ...]") -> Sequence:
+def without_cameras(sequence: Sequence, names: list[str] | tuple[str, ...]) -> Sequence:
     """``sequence`` as if the rig cameras ``names`` were not there (an ablation, or a camera known to
     be broken): the rig without them, and their observations and images dropped from every frame
     (an image source still decodes and tracks them: the frontend's per-camera state is left as it

@@ -117,21 +117,27 @@ def valid_pixel_mask(camera: Camera, margin_px: float = 4.0, step: int = 4) -> n
     return cv2.erode(mask, np.ones((2 * radius + 1, 2 * radius + 1), np.uint8))
 
 
+def road_points(camera: Camera, pixels: np.ndarray, road_z: float) -> np.ndarray:
+    """Body-frame points (N, 3) where the rays of ``pixels`` (N, 2) meet the road plane
+    ``z = road_z`` of the camera's body frame (``-hitch_height``, DESIGN 1); NaN where a ray does
+    not point down (or does not unproject)."""
+    with np.errstate(all="ignore"):
+        rays = camera.unproject(pixels) @ camera.R_body_camera.T
+        depth = np.where(rays[:, 2] < -1e-6, (road_z - camera.center[2]) / rays[:, 2], np.nan)
+        return camera.center + depth[:, None] * rays
+
+
 def road_pixel_mask(camera: Camera, road_z: float, max_range_m: float, step: int = 8) -> np.ndarray | None:
-    """uint8 mask (255 = road) of the pixels whose ray meets the road plane ``z = road_z`` of the
-    camera's body frame (``-hitch_height``, DESIGN 1) at most ``max_range_m`` from the camera
-    (horizontally), sampled every ``step`` px; ``None`` if no pixel sees the road there (the camera
-    looks up, or sits less than 0.2 m above the plane)."""
-    height = float(camera.center[2]) - road_z
-    if height < 0.2:
+    """uint8 mask (255 = road) of the pixels whose ray meets the road plane ``z = road_z``
+    (:func:`road_points`) at most ``max_range_m`` from the camera (horizontally), sampled every
+    ``step`` px; ``None`` if no pixel sees the road there (the camera looks up, or sits less than
+    0.2 m above the plane)."""
+    if float(camera.center[2]) - road_z < 0.2:
         return None
     columns, rows = np.arange(0, camera.width, step, dtype=float), np.arange(0, camera.height, step, dtype=float)
     grid = np.stack(np.meshgrid(columns, rows), axis=-1).reshape(-1, 2)
-    with np.errstate(all="ignore"):
-        rays = camera.unproject(grid) @ camera.R_body_camera.T
-        downward = np.nan_to_num(-rays[:, 2], nan=0.0)
-        horizontal = np.linalg.norm(rays[:, :2], axis=1)
-        road = (downward > 1e-6) & (height * horizontal <= max_range_m * np.maximum(downward, 1e-12))
+    with np.errstate(invalid="ignore"):
+        road = np.linalg.norm(road_points(camera, grid, road_z)[:, :2] - camera.center[:2], axis=1) <= max_range_m
     if not np.any(road):
         return None
     coarse = (road.reshape(len(rows), len(columns)) * 255).astype(np.uint8)
@@ -203,11 +209,11 @@ def plane_warped_tracks(
     plane's patches have the current image's scale and shear, so the translation-only window model of
     KLT holds (it reads an expanding patch's flow short otherwise). A plane track the second pass
     tracks replaces the first pass's answer, also where the first pass lost it (near road points at
-    speed) if it lands within ``plane_warp_threshold_px`` of the homography refitted to the second
-    pass (on the plane); one it
-    loses or that lands off the plane keeps the first pass's answer (a vehicle on the road, or the
-    road when a vehicle close ahead filled the region and gave the homography). Fewer than
-    ``plane_warp_min_tracks`` good plane tracks or inliers: the first pass unchanged.
+    speed), if it lands within ``plane_warp_threshold_px`` of the homography refitted to the second
+    pass (on the plane); one it loses or that lands off the plane keeps the first pass's answer (a
+    vehicle on the road, or the road when a vehicle close ahead filled the region and gave the
+    homography). Fewer than ``plane_warp_min_tracks`` good plane tracks or inliers: the first pass
+    unchanged.
     """
     fit = good & on_plane
     if fit.sum() < config.plane_warp_min_tracks:
@@ -218,7 +224,11 @@ def plane_warped_tracks(
     if homography is None or inliers is None or int(inliers.sum()) < config.plane_warp_min_tracks:
         return tracked, good
     plane = np.flatnonzero(on_plane)
-    predicted = cv2.perspectiveTransform(previous_pixels[plane].reshape(-1, 1, 2).astype(np.float64), homography).reshape(-1, 2)
+
+    def moved(homography: np.ndarray) -> np.ndarray:
+        return cv2.perspectiveTransform(previous_pixels[plane].reshape(-1, 1, 2).astype(np.float64), homography).reshape(-1, 2)
+
+    predicted = moved(homography)
     width, height = image_size
     warped = cv2.warpPerspective(previous_image, homography, (width, height), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     second_config = dataclasses.replace(config, lk_levels=min(config.plane_warp_levels, config.lk_levels))
@@ -236,7 +246,7 @@ def plane_warped_tracks(
         refitted, _ = cv2.findHomography(previous_pixels[plane[near]].astype(np.float64), refined[near].astype(np.float64),
                                          cv2.RANSAC, config.plane_warp_threshold_px)
         if refitted is not None:
-            predicted = cv2.perspectiveTransform(previous_pixels[plane].reshape(-1, 1, 2).astype(np.float64), refitted).reshape(-1, 2)
+            predicted = moved(refitted)
     refined_good &= np.linalg.norm(refined - predicted, axis=1) <= config.plane_warp_threshold_px
     tracked, good = tracked.copy(), good.copy()
     tracked[plane[refined_good]] = refined[refined_good]

@@ -77,17 +77,18 @@ there) measure a chord that differs from the whole view's by more than ``lane_co
 (2) times the spread of the difference of two nested estimates, ``sqrt(sigma_band^2 -
 sigma_whole^2)`` (Hausman's test: under one road plane the band and the whole view agree, and the
 whole view, with more points, is kept; a standing start's few metres of chord, where the band's
-points are too few to tell, keep the whole view too). Rendered images of plain asphalt hold few points in the
-own lane (a median of 3 on the motorway's cab and mirror cameras): the whole view, which 93 % of
-its keyframes fell back to, read their chords 4 % short (0.959 of the truth with the true motion,
-the lane's 0.998; ``tests/scale``: the band's error a fifth of the whole view's). The lane's
+points are too few to tell, keep the whole view too). Rendered images of plain asphalt hold few
+points in the own lane (a median of 3 on the motorway's cab and mirror cameras): the whole view,
+which 93 % of its keyframes fell back to, read their chords 4 % short (0.959 of the truth with the
+true motion, the lane's 0.998; ``tests/scale``: the band's error a fifth of the whole view's). The lane's
 texture is sparse (lane markings and worn patches on plain asphalt): with 15 points and 25 m the
 own lane fell back to the crowned whole view on most keyframes of the simulated motorway and its
 chord read 3 % short (ground chords with the true motion, median over its frames 100-1000: 0.967
 of the truth; with 8 points and 40 m 1.000, the hilly road 0.994 -> 1.002, the city 0.990 ->
 1.003). A vertical curve bends the road by up to 40 cm at 40 m (K = 2000 m), but points that far
 ahead carry little weight in the inverse-variance chord, and the plane's pitch is fitted.
-The lane is also where the traffic ahead drives: a vehicle moving along the truck's path, and its shadow on the road, are consistent with the ego-motion's epipolar geometry at
+The lane is also where the traffic ahead drives: a vehicle moving along the truck's path, and its
+shadow on the road, are consistent with the ego-motion's epipolar geometry at
 another depth and read as chords tens of % short. So the lane's points are those within
 ``lane_consensus_tolerance`` (15 %) of the whole view's road (1-D consensus over every
 candidate, where the static road is the majority).
@@ -389,25 +390,25 @@ def in_own_lane(f: np.ndarray, offset: np.ndarray, height: float, curvature: flo
     return downward & (np.abs(lateral) <= options.lane_half_width_m) & (np.abs(along) <= options.lane_length_m)
 
 
-def _within_lane(per_camera: Sequence[PointChords], yaw_per_travel: float, options: GroundScaleOptions,
-                 widening: float = 1.0) -> list[PointChords] | None:
-    """``per_camera`` with the candidates restricted to the own lane (:func:`in_own_lane`, its half
-    width times ``widening``): those that agree within ``lane_consensus_tolerance`` with the whole
-    view's road (the 1-D consensus of :func:`robust_chord` over every candidate: moving traffic in
-    the lane ahead and its shadow on the road, which the ego-motion's epipolar geometry cannot tell
-    from the static road, read as chords tens of % off, the road's shape beyond the lane a few %),
-    when at least ``min_lane_points`` remain; ``None`` otherwise. Without a lane
-    (``lane_half_width_m`` None) ``per_camera`` unchanged. The path's curvature is
-    ``yaw_per_travel`` (the yaw change, its sign flipped when reversing) over the whole view's
-    chord: the given motion's has no scale."""
-    if options.lane_half_width_m is None:
-        return list(per_camera)
+def _consensus_road_chord(per_camera: Sequence[PointChords], options: GroundScaleOptions) -> float | None:
+    """The whole view's road chord: the 1-D consensus of :func:`robust_chord` over every candidate
+    (None without one): what the own lane's points must agree with (:func:`_within_lane`)."""
     chords = np.concatenate([points.chord[points.candidate] for points in per_camera])
     sigmas = np.concatenate([points.sigma[points.candidate] for points in per_camera])
     whole = robust_chord(chords, sigmas, options) if chords.size else None
-    if whole is None:
-        return None
-    road_chord = whole[0]
+    return None if whole is None else whole[0]
+
+
+def _within_lane(per_camera: Sequence[PointChords], road_chord: float, yaw_per_travel: float, options: GroundScaleOptions,
+                 widening: float = 1.0) -> list[PointChords] | None:
+    """``per_camera`` with the candidates restricted to the own lane (:func:`in_own_lane`, its half
+    width ``lane_half_width_m`` times ``widening``): those that agree within
+    ``lane_consensus_tolerance`` with the whole view's ``road_chord``
+    (:func:`_consensus_road_chord`: moving traffic in the lane ahead and its shadow on the road,
+    which the ego-motion's epipolar geometry cannot tell from the static road, read as chords tens
+    of % off, the road's shape beyond the lane a few %), when at least ``min_lane_points`` remain;
+    ``None`` otherwise. The path's curvature is ``yaw_per_travel`` (the yaw change, its sign flipped
+    when reversing) over ``road_chord``: the given motion's has no scale."""
     curvature = yaw_per_travel / road_chord
     band = dataclasses.replace(options, lane_half_width_m=widening * options.lane_half_width_m)
     in_lane = []
@@ -642,20 +643,25 @@ def ground_plane_chord(
         return GroundChord(GroundScaleStatus.SMALL_BASELINE)
     # the path's curvature is the yaw change over the signed chord (negative: reversing)
     yaw_per_travel = (1.0 if axle_chord_direction(T_i_j, axle_x)[0] >= 0.0 else -1.0) * yaw_of(T_i_j)
-    lane = _within_lane(per_camera, yaw_per_travel, options)
-    if lane is not None or options.lane_half_width_m is None:
-        return _chord_of_points(per_camera if lane is None else lane, heights, options, yaw_sigma)
+    road_chord = _consensus_road_chord(per_camera, options) if options.lane_half_width_m is not None else None
+    if road_chord is None:
+        return _chord_of_points(per_camera, heights, options, yaw_sigma)
+    lane = _within_lane(per_camera, road_chord, yaw_per_travel, options)
+    if lane is not None:
+        return _chord_of_points(lane, heights, options, yaw_sigma)
     # too few points in the own lane: the whole view, unless the points near the path (twice the
     # lane's half width) measure a different chord (the road beyond is not the lane's plane)
     whole = _chord_of_points(per_camera, heights, options, yaw_sigma)
-    near = _within_lane(per_camera, yaw_per_travel, options, widening=2.0)
+    near = _within_lane(per_camera, road_chord, yaw_per_travel, options, widening=2.0)
     if near is None or not whole.ok:
         return whole
     band = _chord_of_points(near, heights, options, yaw_sigma)
+    if not band.ok:
+        return whole
     # Hausman's test of nested estimates: the band's points are among the whole view's, so under
     # one plane the difference has the variance sigma_band^2 - sigma_whole^2
-    spread = np.sqrt(max(band.sigma**2 - whole.sigma**2, 0.0)) if band.ok else 0.0
-    if band.ok and abs(band.chord - whole.chord) > options.lane_consistency_sigmas * spread:
+    spread = np.sqrt(max(band.sigma**2 - whole.sigma**2, 0.0))
+    if abs(band.chord - whole.chord) > options.lane_consistency_sigmas * spread:
         logger.debug("whole view's chord %.4f +- %.4f m differs from the %d points near the path (%.4f +- %.4f m): those taken",
                      whole.chord, whole.sigma, band.inlier_count, band.chord, band.sigma)
         return band

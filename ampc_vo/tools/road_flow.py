@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from ampc_vo.config import TrackerConfig
-from ampc_vo.frontend.tracker import as_gray_image, plane_warped_tracks, road_pixel_mask, track_forward_backward
+from ampc_vo.frontend.tracker import as_gray_image, plane_warped_tracks, road_pixel_mask, road_points, track_forward_backward
 from ampc_vo.rig import Camera
 
 
@@ -33,20 +33,12 @@ class RoadFlow:
     warped_ratio: np.ndarray
 
 
-def _road_points(camera: Camera, pixels: np.ndarray, road_z: float) -> np.ndarray:
-    """Body-frame road points (N, 3) of pixels (NaN where the ray does not meet the road ahead)."""
-    rays = camera.unproject(pixels) @ camera.R_body_camera.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        depth = np.where(rays[:, 2] < -1e-6, (road_z - camera.center[2]) / rays[:, 2], np.nan)
-    return camera.center + depth[:, None] * rays
-
-
 def warp_by_forward_move(camera: Camera, gray: np.ndarray, road_z: float, forward_m: float) -> np.ndarray:
     """``gray`` as the camera sees it after its body moved ``forward_m`` along x over a flat road
     (road pixels resampled bicubically from where their road point was; other pixels unchanged)."""
     columns, rows = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
     pixels = np.column_stack([columns.ravel(), rows.ravel()])
-    points_after = _road_points(camera, pixels, road_z)
+    points_after = road_points(camera, pixels, road_z)
     points_before = points_after + [forward_m, 0.0, 0.0]
     with np.errstate(invalid="ignore"):
         source, visible = camera.project(np.nan_to_num((points_before - camera.center) @ camera.R_body_camera, nan=-1.0))
@@ -67,7 +59,7 @@ def road_flow_ratios(camera: Camera, image: np.ndarray, road_z: float, forward_m
         return RoadFlow(empty, empty, empty, empty)
     corners = cv2.goodFeaturesToTrack(first, max_corners, 0.005, 6, mask=mask)
     corners = np.zeros((0, 2)) if corners is None else corners.reshape(-1, 2).astype(float)
-    points = _road_points(camera, corners, road_z)
+    points = road_points(camera, corners, road_z)
     truth, visible = camera.project(np.nan_to_num((points - [forward_m, 0.0, 0.0] - camera.center) @ camera.R_body_camera, nan=-1.0))
     size = (camera.width, camera.height)
     plain, plain_good = track_forward_backward(first, second, corners, config, size)

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from ampc_vo.backend.pipeline import run_on_frames
 from ampc_vo.config import config_from_dict
@@ -17,8 +18,14 @@ from ampc_vo.tools.evaluation import evaluate_output
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_realistic_ci_route_end_to_end(tmp_path):
-    result = simulate(ROOT / "configs" / "sim" / "realistic_ci_short.yaml")
+@pytest.fixture(scope="module")
+def route():
+    """The CI route simulated once for the module (the simulation is deterministic: its seed)."""
+    return simulate(ROOT / "configs" / "sim" / "realistic_ci_short.yaml")
+
+
+def test_realistic_ci_route_end_to_end(tmp_path, route):
+    result = route
     assert result.rig.hitch_height == 1.2 and result.rig.axle_x("tractor") < 0.0
     data = tmp_path / "data"
     write_dataset(data, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory, measurements=result.measurements)
@@ -37,18 +44,16 @@ def test_realistic_ci_route_end_to_end(tmp_path):
     assert metrics.hitch_rmse_deg < 30.0
 
 
-def test_without_the_trailer_cameras_the_hitch_sigma_says_so(tmp_path):
+def test_without_the_trailer_cameras_the_hitch_sigma_says_so(tmp_path, route):
     """``run_odometry.py --without-cameras`` (the ablation of the README): the same folder run without
     the trailer cameras publishes the hitch of the joint loop and the trailer's model alone, with
     a sigma that says so (measured on realistic_ci_short: median 0.14 deg with the cameras, 3.0 deg
     without), and an unknown or the last tractor camera is refused with the names the rig has."""
-    import pytest
-
     from ampc_vo.errors import DatasetError
     from ampc_vo.frontend.sources import open_sequence
     from ampc_vo.tools.runner import run_sequence
 
-    result = simulate(ROOT / "configs" / "sim" / "realistic_ci_short.yaml")
+    result = route
     data = tmp_path / "data"
     write_dataset(data, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory, measurements=result.measurements)
     config = config_from_dict({"output": {"progress": False}})
@@ -68,19 +73,19 @@ def test_without_the_trailer_cameras_the_hitch_sigma_says_so(tmp_path):
         open_sequence(data, config, dropped_cameras=("cab_front", "mirror_left", "mirror_right"))
 
 
-def test_rolling_shutter_rows_in_the_epipolar_factors_run_end_to_end(tmp_path, monkeypatch):
+def test_rolling_shutter_rows_in_the_epipolar_factors_run_end_to_end(tmp_path, monkeypatch, route):
     """``smoother.rolling_shutter_rows`` (off by default, DESIGN 11) on the CI route, whose cameras
     read out over 30 ms: the per-row factors are built and the run stays as accurate as without
     (measured: ATE 0.065 m of 37 m, hitch RMSE 0.17 deg, all within 3 sigma)."""
-    result = simulate(ROOT / "configs" / "sim" / "realistic_ci_short.yaml")
+    result = route
     assert all(camera.readout_time > 0.0 for camera in result.rig.cameras)
     data = tmp_path / "data"
     write_dataset(data, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory, measurements=result.measurements)
-    import factors
+    from ampc_vo.backend import smoother
 
     calls = []
-    per_row = factors.body_correspondences_per_row
-    monkeypatch.setattr(factors, "body_correspondences_per_row", lambda *args: calls.append(args[1]) or per_row(*args))
+    per_row = smoother.body_correspondences_per_row
+    monkeypatch.setattr(smoother, "body_correspondences_per_row", lambda *args: calls.append(args[1]) or per_row(*args))
     config = config_from_dict({"output": {"progress": False}, "smoother": {"rolling_shutter_rows": True}})
     run_on_frames(result.rig, config, result.measurements.frames(result.rig), tmp_path / "run", total=len(result.trajectory))
     metrics = evaluate_output(tmp_path / "run", load_groundtruth(data)).metrics
