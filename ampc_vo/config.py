@@ -232,6 +232,10 @@ class SmootherConfig:
     nonholonomic_slip_deg_per_mps2: float = 0.7  # both: tyre slip angle per m/s^2 of lateral acceleration (cornering coefficient ~0.15/deg)
     planar_rotation_sigma_deg: float = 0.2
     planar_height_sigma_m: float = 0.02
+    # suspension: body roll and pitch per m/s^2 of lateral and longitudinal acceleration (quasi-static;
+    # trucks: roll 0.4-0.9, pitch 0.1-0.35 deg per m/s^2, Gillespie ch. 5); widen the planar factor
+    suspension_roll_deg_per_mps2: float = 0.9
+    suspension_pitch_deg_per_mps2: float = 0.35
     joint_loop_rotation_sigma_deg: float = 0.1
     joint_loop_translation_sigma_m: float = 0.01
     joint_loop_pitch_sigma_deg: float = 10.0   # the fifth wheel's plate pitches freely (about +-15 deg of travel)
@@ -260,6 +264,7 @@ class SmootherConfig:
     def validate(self, where: str) -> None:
         for name in (
             "lag_s", "pixel_sigma", "huber_k", "nonholonomic_sigma_m", "nonholonomic_slip_deg", "trailer_nonholonomic_slip_deg", "nonholonomic_slip_deg_per_mps2", "planar_rotation_sigma_deg",
+            "suspension_roll_deg_per_mps2", "suspension_pitch_deg_per_mps2",
             "planar_height_sigma_m", "joint_loop_rotation_sigma_deg", "joint_loop_translation_sigma_m", "joint_loop_pitch_sigma_deg",
             "prior_rotation_sigma_deg", "prior_translation_sigma_m", "hitch_prior_sigma_deg", "hitch_limit_deg",
             "hitch_random_walk_deg_per_m", "hitch_hold_sigma_growth_deg_per_s", "lm_lambda_initial",

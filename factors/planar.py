@@ -48,6 +48,25 @@ def planar_motion_error(
     return residual, [jacobian @ between_i, jacobian]
 
 
+def planar_sigmas(
+    lateral_acceleration: float,
+    longitudinal_acceleration: float,
+    floor: float,
+    roll_per_acceleration: float,
+    pitch_per_acceleration: float,
+    height_sigma: float,
+) -> np.ndarray:
+    """Sigmas (3,) of the residual ``[roll, pitch, t_z]`` (radians, radians, metres) over a keyframe
+    pair as tight as a sprung body allows: a ``floor`` (radians: road unevenness, vibration) and the
+    suspension's quasi-static response, roll ``G_roll a_y`` and pitch ``G_pitch a_x`` (gains in
+    radians per m/s^2; trucks 0.4-0.9 and 0.1-0.35 degrees per m/s^2, Gillespie, Fundamentals of
+    Vehicle Dynamics, ch. 5), added in quadrature: the attitude may change between the keyframes by
+    the gain times the acceleration (|m/s^2|) that sets in or ends within the pair."""
+    roll = np.hypot(floor, roll_per_acceleration * abs(lateral_acceleration))
+    pitch = np.hypot(floor, pitch_per_acceleration * abs(longitudinal_acceleration))
+    return np.array([roll, pitch, height_sigma])
+
+
 class PlanarMotionFactor(gtsam.CustomFactor):
     """Soft planar-motion constraint on two ``Pose3`` keys ``T_world_body`` (module docstring).
 

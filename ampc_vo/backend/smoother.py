@@ -75,7 +75,7 @@ from factors.epipolar import EpipolarBlock, body_correspondences, body_correspon
 from factors.hitch_limit import HitchLimitFactor
 from factors.joint_loop import fifth_wheel_error
 from factors.nonholonomic import nonholonomic_error
-from factors.planar import planar_motion_error
+from factors.planar import planar_motion_error, planar_sigmas
 from factors.relative_pose import relative_pose_error
 from factors.stacked import StackedFactor, Term
 from factors.wheel_speed import chord_error, scaled_chord_error
@@ -517,8 +517,7 @@ class ArticulatedSmoother:
             status = init.tractor_status if body == "tractor" else init.trailer_status
             pair = (key(previous), key(k))
             # planar motion of both bodies: the trailer's pitch is free at the fifth wheel
-            planar_sigmas = np.array([np.radians(config.planar_rotation_sigma_deg)] * 2 + [config.planar_height_sigma_m])
-            pending.terms.append(Term(pair, (POSE, POSE), planar_motion_error, planar_sigmas))
+            pending.terms.append(Term(pair, (POSE, POSE), planar_motion_error, self._planar_sigmas(key, keyframe, pending)))
             if standstill:
                 if own_motion:
                     tight = _pose_sigma_vector(np.radians(config.standstill_rotation_sigma_deg), config.standstill_translation_sigma_m)
@@ -660,6 +659,37 @@ class ArticulatedSmoother:
         lateral_acceleration = abs(chord / dt * yaw_of(T_j_k[:3, :3]) / dt)
         slip = np.radians(np.hypot(base, config.nonholonomic_slip_deg_per_mps2 * lateral_acceleration))
         return float(np.hypot(config.nonholonomic_sigma_m, chord * np.tan(slip)))
+
+    def _interval_motion(self, key, k: int, pending: _Pending) -> tuple[float, float] | None:
+        """Speed (m/s, of the body origin) and yaw rate (rad/s) over keyframe pair (k-1, k) from the
+        window's current poses; None when k-1 is not in the window."""
+        if k < 1 or (k - 1) not in self._window or k not in self._window:
+            return None
+        dt = max(self._window[k].dt, 1e-3)
+        T_j_k = relative_pose(self._pose(key(k - 1), pending), self._pose(key(k), pending))
+        return float(np.linalg.norm(T_j_k[:2, 3])) / dt, yaw_of(T_j_k[:3, :3]) / dt
+
+    def _planar_sigmas(self, key, keyframe: _Keyframe, pending: _Pending) -> np.ndarray:
+        """Sigmas of a body's planar-motion residual over keyframe pair (k-1, k)
+        (:func:`factors.planar.planar_sigmas`) at the largest lateral (``v * yaw rate``) and
+        longitudinal (speed change) acceleration of this and the previous interval, from the
+        window's current poses: the nose of a braking truck rises when it stops within a pair, which
+        the pair's mean acceleration does not show. A planar factor tighter than the suspension
+        pushes an unmodelled pitch or roll change into the yaw and the chord."""
+        config = self.config.smoother
+        k = keyframe.index
+        motions = [self._interval_motion(key, index, pending) for index in (k, k - 1, k - 2)]
+        lateral, longitudinal = 0.0, 0.0
+        for age, (motion, before) in enumerate(zip(motions[:2], motions[1:])):
+            if motion is None:
+                continue
+            speed, yaw_rate = motion
+            lateral = max(lateral, abs(speed * yaw_rate))
+            if before is not None:
+                interval = 0.5 * (self._window[k - age].dt + self._window[k - age - 1].dt)
+                longitudinal = max(longitudinal, abs(speed - before[0]) / max(interval, 1e-3))
+        return planar_sigmas(lateral, longitudinal, np.radians(config.planar_rotation_sigma_deg), np.radians(config.suspension_roll_deg_per_mps2),
+                             np.radians(config.suspension_pitch_deg_per_mps2), config.planar_height_sigma_m)
 
     def _add_hitch_limit(self, k: int, pending: _Pending) -> None:
         """The hitch's mechanical range on ``A(k)`` (:mod:`factors.hitch_limit`): the trailer's own

@@ -8,6 +8,7 @@ from gtsam.utils.numerical_derivative import numericalDerivative21, numericalDer
 
 from ampc_vo.geometry import make_pose, rot_x, rot_y, rot_z
 from factors import PlanarMotionFactor, planar_motion_error
+from factors.planar import planar_sigmas
 from factors_support import articulated_truth, assert_jacobian_close, random_pose
 
 NOISE = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.01, 0.01, 0.02]))
@@ -55,3 +56,25 @@ def test_linearize_shape_and_guards():
         PlanarMotionFactor(0, 1, gtsam.noiseModel.Isotropic.Sigma(6, 0.01))
     with pytest.raises(ValueError, match="distinct"):
         PlanarMotionFactor(0, 0, NOISE)
+
+
+def test_planar_sigmas_widen_with_the_suspension_response_to_acceleration():
+    """A truck braking at 1.5 m/s^2 and stopping within a keyframe pair: its nose rises by the
+    empty tractor's pitch gain times the deceleration (the simulator's ``SUSPENSION`` table, from
+    Gillespie ch. 5): 0.35 x 1.5 = 0.53 deg, 2.6 sigmas of a fixed 0.2 deg planar factor but within
+    one of the widened one. Roll follows the lateral acceleration only, pitch the longitudinal."""
+    from ampc_vo.sim.attitude import SUSPENSION
+
+    floor, height = np.radians(0.2), 0.02
+    roll_gain, pitch_gain = np.radians(0.9), np.radians(0.35)
+    at_rest = planar_sigmas(0.0, 0.0, floor, roll_gain, pitch_gain, height)
+    np.testing.assert_allclose(at_rest, [floor, floor, height])
+    pitch_change = np.radians(SUSPENSION["empty"]["tractor"].pitch_gain_deg) * 1.5
+    assert pitch_change / floor > 2.5
+    braking = planar_sigmas(0.0, -1.5, floor, roll_gain, pitch_gain, height)
+    assert braking[0] == pytest.approx(floor) and pitch_change < braking[1] < 1.1 * pitch_change
+    cornering = planar_sigmas(2.0, 0.0, floor, roll_gain, pitch_gain, height)
+    assert cornering[1] == pytest.approx(floor)
+    assert np.degrees(cornering[0]) == pytest.approx(np.hypot(0.2, 1.8))
+    roll_change = np.radians(SUSPENSION["loaded"]["trailer"].roll_gain_deg) * 2.0  # a loaded trailer entering a 2 m/s^2 turn
+    assert roll_change <= cornering[0]
