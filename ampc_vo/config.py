@@ -183,7 +183,8 @@ class RansacConfig:
     min_inliers: int = 8
     seed: int = 0
     # median parallax (pixels, divided by the focal length) below which a frame pair is a standstill;
-    # null: the solvers' default (0.003 rad). Forward motion with mostly far points (KITTI) needs less
+    # null: the median parallax of still points under smoother.pixel_sigma (1.665 sigma: the difference
+    # of two noisy observations is Rayleigh). Forward motion with mostly far points (KITTI) needs less
     standstill_parallax_px: float | None = None
     # the hardest braking a truck can do (full braking of loaded trucks is about 5-7 m/s^2; UN ECE
     # R13 asks N3 vehicles for at least 5 m/s^2): a frame pair is a standstill only when the speed

@@ -117,9 +117,13 @@ def _parallax_summary(pairs: list[CameraPairs]) -> str:
 def _solver_config(config: VoConfig, cameras: list[Camera]) -> SolverRansacConfig:
     """The solvers' RANSAC options from the VO config: the pixel threshold over the mean focal."""
     focal = float(np.mean([0.5 * (camera.fx + camera.fy) for camera in cameras])) if cameras else 500.0
-    standstill = {} if config.ransac.standstill_parallax_px is None else {"standstill_parallax": config.ransac.standstill_parallax_px / focal}
+    # null: the median parallax of still points under the configured pixel noise (the difference of two
+    # noisy observations is Rayleigh with scale sqrt(2) sigma, median sqrt(2 ln 2) sqrt(2) sigma = 1.665 sigma)
+    standstill_px = config.ransac.standstill_parallax_px
+    if standstill_px is None:
+        standstill_px = _STILL_PARALLAX_SIGMAS * config.smoother.pixel_sigma
     return SolverRansacConfig(
-        **standstill,
+        standstill_parallax=standstill_px / focal,
         sampson_threshold=config.ransac.threshold_px / focal,
         confidence=config.ransac.confidence,
         max_iterations=config.ransac.max_iterations,
@@ -204,6 +208,9 @@ class TractorMotion:
         return float(np.arctan2(self.T_i_j[1, 0], self.T_i_j[0, 0]))
 
 
+_STILL_PARALLAX_SIGMAS = 2.0 * float(np.sqrt(np.log(2.0)))  # 1.665
+
+
 def _least_distance(speed: float, dt: float, deceleration: float) -> float:
     """The least distance (m) a truck at ``speed`` (m/s) covers in ``dt`` seconds braking at
     ``deceleration`` (m/s^2): ``min(v dt - a dt^2 / 2, v^2 / (2 a))`` (it may come to rest)."""
@@ -219,6 +226,8 @@ class MotionInitializer:
         self._tractor_config = _solver_config(config, rig.cameras_on("tractor"))
         self._trailer_config = _solver_config(config, rig.cameras_on("trailer")) if rig.has_trailer else None
         self._rng = np.random.default_rng(config.ransac.seed)
+        # (time, speed m/s) where the parallax first said standstill and the speed before forbade it
+        self._standstill_refused: tuple[float, float] | None = None
         self.use_trailer = rig.has_trailer and config.mode != "tractor_only"
         self._ground_options = GroundScaleOptions(
             ground_z=rig.ground_z, pixel_sigma=config.smoother.pixel_sigma, height_sigma_m=config.scale.ground_height_sigma_m,
@@ -256,10 +265,13 @@ class MotionInitializer:
         direction = None if speed_before is None or self._can_stop(abs(speed_before), dt) else float(np.sign(speed_before))
         estimate = estimate_tractor_motion(ego_pairs, self.rig.axle_x("tractor"), self._tractor_config, chord_prior=chord_prior, rng=self._rng,
                                            direction=direction)
-        if estimate.status is SolverStatus.STANDSTILL and speed_before is not None and not self._can_stop(abs(speed_before), dt):
+        if estimate.status is not SolverStatus.STANDSTILL:
+            self._standstill_refused = None
+        elif speed_before is not None and not self._may_rest(first.timestamp, second.timestamp, abs(speed_before)):
+            since, speed = self._standstill_refused
             logger.info("frames %d-%d: parallax says standstill, but the truck cannot stop from %.1f m/s within %.2f s "
                         "(ransac.max_deceleration_mps2): motion estimated without the still tracks (median parallax: %s)",
-                        first.frame, second.frame, abs(speed_before), dt, _parallax_summary(pairs))
+                        first.frame, second.frame, speed, second.timestamp - since, _parallax_summary(pairs))
             estimate = estimate_tractor_motion(ego_pairs, self.rig.axle_x("tractor"), self._tractor_config,
                                                chord_prior=chord_prior, rng=self._rng, moving=True, direction=direction)
         estimate = _with_full_masks(estimate, on_trailer)
@@ -293,6 +305,22 @@ class MotionInitializer:
         margin = _UNKNOWN_HITCH_MARGIN if hitch is None else _HITCH_MARGIN
         angles = centre + np.linspace(-margin, margin, 5)
         return [on_trailer_box(pair, box, angles, _BOX_MARGIN_M) for pair in pairs]
+
+    def _may_rest(self, start: float, end: float, speed_before: float) -> bool:
+        """Whether a truck whose parallax says standstill over ``[start, end]`` can be at rest: it
+        could brake to rest within the pair (:meth:`_can_stop`), or from the speed before the parallax
+        first said so and was refused (``speed_before`` then) before the pair began, braking at
+        ``ransac.max_deceleration_mps2``. The speed and time of that first refusal are kept
+        while the parallax keeps saying standstill, also once it may rest: the speed estimated since
+        is the prediction that the refusal itself made (it held 3.2 m/s for 2 s at the end of the
+        realistic stop_and_go, a keyframe every 0.5 s each refused anew)."""
+        if self._can_stop(speed_before, end - start):
+            return True
+        if self._standstill_refused is None:
+            self._standstill_refused = (start, speed_before)
+            return False
+        since, speed = self._standstill_refused
+        return start - since >= speed / self.config.ransac.max_deceleration_mps2  # at rest before the pair began
 
     def _can_stop(self, speed: float, dt: float) -> bool:
         """Whether a truck at ``speed`` (m/s) can be at rest within a pair of ``dt`` seconds: braking

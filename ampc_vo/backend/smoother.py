@@ -200,6 +200,8 @@ class _Keyframe:
     chord: float = 0.0  # distance of the hitch from the previous keyframe (initial value)
     dt: float = 0.0
     landmarks: dict = field(default_factory=dict)  # per camera: (usable indices, their landmark ids), computed once
+    capture_twists: dict = field(default_factory=dict)  # per body: the twist its epipolar blocks' capture-time extrinsics were built with
+    epipolar_factor: object = None  # the keyframe's StackedEpipolarFactor (replaced by _refresh_capture_twists)
 
     def usable_landmarks(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
         """Indices of the camera's observations with a usable landmark id (:func:`match_landmarks`) and the ids."""
@@ -235,6 +237,12 @@ class _Pending:
         else:
             self.values.insert(key, gtsam.Pose3(value))
         self.timestamps[key] = timestamp
+
+
+# capture-time extrinsics rebuilt when the optimised twist moves a camera by more than this (m) or turns
+# it by more than this (rad) over its capture delay (ArticulatedSmoother._refresh_capture_twists)
+_CAPTURE_SHIFT_M = 0.003
+_CAPTURE_TURN_RAD = float(np.radians(0.02))
 
 
 def _pose_sigmas(rotation_rad: float, translation_m: float) -> gtsam.noiseModel.Base:
@@ -337,6 +345,8 @@ class ArticulatedSmoother:
                 del self._window[index]
             raise
         self._estimate = self._smoother.calculateEstimate()
+        if self._refresh_capture_twists(keyframe):
+            self._estimate = self._smoother.calculateEstimate()
         timing.optimisation = time.perf_counter() - started
         self._forget_old(keyframe.timestamp)
         if self.use_trailer and not self.joint:
@@ -352,6 +362,46 @@ class ArticulatedSmoother:
         if lagged:
             return leaving
         return [self._publish(self._window[index], sigma if index == keyframe.index else self._sigma_of(index)) for index in published_indices if index in self._window]
+
+    def _refresh_capture_twists(self, keyframe: _Keyframe) -> bool:
+        """The capture-time extrinsics of keyframe k's epipolar blocks (:meth:`_capture_extrinsic`) move
+        each unsynchronised camera along its body's twist at k, which comes from k's first guess when
+        the factor is built (the newest trailer pose: the tractor's solver motion through the joint
+        loop at an initial hitch angle). Once the window has optimised k, the twist is taken again from
+        the optimised poses; where it moves some camera by more than ``_CAPTURE_SHIFT_M`` or turns it
+        by more than ``_CAPTURE_TURN_RAD`` more over its delay, k's epipolar factor is rebuilt with it
+        and replaces the first one (one more smoother update). Returns whether it did (DESIGN 11)."""
+        factor = keyframe.epipolar_factor
+        if factor is None or keyframe.index not in self._window or not self._estimate.exists(X(keyframe.index)):
+            return False
+        delay = max((abs(keyframe.observations.camera_timestamp(camera.name) - keyframe.timestamp) for camera in self.rig.cameras), default=0.0)
+        if delay < 1e-6:
+            return False
+        moved = False
+        for body, frozen in keyframe.capture_twists.items():
+            refreshed = self._body_twist(body, keyframe, _Pending())
+            if frozen is None or refreshed is None:
+                continue
+            change = (refreshed - frozen) * delay
+            moved |= bool(np.linalg.norm(change[3:]) > _CAPTURE_SHIFT_M or np.linalg.norm(change[:3]) > _CAPTURE_TURN_RAD)
+        if not moved:
+            return False
+        graph = self._smoother.getFactors()
+        index = next((i for i in range(graph.size()) if graph.exists(i) and graph.at(i) is factor), None)
+        if index is None:
+            return False
+        pending = _Pending()
+        blocks: list[tuple[EpipolarBlock, float]] = []
+        for body in keyframe.capture_twists:
+            self._add_epipolar_factors(body, keyframe, pending, blocks)
+        keyframe.epipolar_factor = self._add_stacked_epipolar(blocks, pending)
+        try:
+            self._smoother.update(pending.graph, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap(), [index])
+        except RuntimeError as error:
+            logger.warning("frame %d: refreshing the capture-time extrinsics failed (%s)", keyframe.frame, " ".join(str(error).split())[:240])
+            return False
+        logger.debug("frame %d: capture-time extrinsics rebuilt from the optimised twist", keyframe.frame)
+        return True
 
     def _recover(self, keyframe: _Keyframe, pending: _Pending, error: RuntimeError) -> None:
         """An ill-conditioned window (e.g. a keyframe whose factors were all rejected): anchor the new
@@ -546,7 +596,7 @@ class ArticulatedSmoother:
             if body == "tractor" and init.scale_chord is not None:
                 chord, chord_sigma = init.scale_chord
                 pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(chord)), np.array([float(chord_sigma)]), config.huber_k))
-        self._add_stacked_epipolar(epipolar_blocks, pending)
+        keyframe.epipolar_factor = self._add_stacked_epipolar(epipolar_blocks, pending)
 
     @property
     def _wheel_scale(self) -> bool:
@@ -711,18 +761,19 @@ class ArticulatedSmoother:
         """Sampson residual sigma of a camera: pixel sigma / focal length (DESIGN section 3)."""
         return self.config.smoother.pixel_sigma / (0.5 * (camera.fx + camera.fy))
 
-    def _add_stacked_epipolar(self, blocks: list[tuple[EpipolarBlock, float]], pending: _Pending) -> None:
+    def _add_stacked_epipolar(self, blocks: list[tuple[EpipolarBlock, float]], pending: _Pending) -> object:
         """One :class:`factors.StackedEpipolarFactor` with all GEC blocks of the new keyframe (both
         bodies, every keyframe pair and camera pair), Huber per residual, 6 rows per keyframe pair.
         It is marginalised when its oldest key leaves the window: with pairs up to 3 keyframes
         apart, as before when the rows of (k-3, k) had factors of their own."""
         if not blocks:
-            return
+            return None
         from factors import StackedEpipolarFactor
 
         factor = StackedEpipolarFactor([block for block, _ in blocks], [sigma for _, sigma in blocks], self.config.smoother.huber_k)
         pending.graph.add(factor)
         pending.residuals += len(factor)
+        return factor
 
     def _verified(self, keyframe: _Keyframe, camera: str, observations: CameraObservations, index: np.ndarray) -> np.ndarray:
         """Mask of the observations ``index`` that the RANSAC of their keyframe pair kept (all True
@@ -746,6 +797,7 @@ class ArticulatedSmoother:
         cameras = self.rig.cameras_on(body)
         # each camera's extrinsic at its capture time, once per keyframe (not per camera pair)
         twist_k = self._body_twist(body, keyframe, pending)
+        keyframe.capture_twists[body] = twist_k
         extrinsics_k = {camera.name: self._capture_extrinsic(keyframe, camera, twist_k) for camera in cameras}
         cross_gap = 0
         if config.scale.cross_camera and len(cameras) > 1:
