@@ -36,6 +36,9 @@ logger = logging.getLogger(__name__)
 # factor by which a measured chord may exceed, or fall short of, what the last keyframes' estimated
 # speed allows (MotionInitializer._reachable)
 _SPEED_SLACK = 2.0
+# median parallax of still points in units of the pixel noise: two noisy observations differ by a
+# Rayleigh distance of scale sqrt(2) sigma, median sqrt(2 ln 2) sqrt(2) sigma (_solver_config)
+_STILL_PARALLAX_SIGMAS = 2.0 * float(np.sqrt(np.log(2.0)))  # 1.665
 # yaw-change uncertainty given to the ground-plane chord: floor of the RANSAC's sigma, and the value
 # used when it has none (radians)
 _MIN_YAW_SIGMA = float(np.radians(0.01))
@@ -117,8 +120,7 @@ def _parallax_summary(pairs: list[CameraPairs]) -> str:
 def _solver_config(config: VoConfig, cameras: list[Camera]) -> SolverRansacConfig:
     """The solvers' RANSAC options from the VO config: the pixel threshold over the mean focal."""
     focal = float(np.mean([0.5 * (camera.fx + camera.fy) for camera in cameras])) if cameras else 500.0
-    # null: the median parallax of still points under the configured pixel noise (the difference of two
-    # noisy observations is Rayleigh with scale sqrt(2) sigma, median sqrt(2 ln 2) sqrt(2) sigma = 1.665 sigma)
+    # null: the median parallax of still points under the configured pixel noise
     standstill_px = config.ransac.standstill_parallax_px
     if standstill_px is None:
         standstill_px = _STILL_PARALLAX_SIGMAS * config.smoother.pixel_sigma
@@ -206,9 +208,6 @@ class TractorMotion:
     @property
     def yaw_change(self) -> float:
         return float(np.arctan2(self.T_i_j[1, 0], self.T_i_j[0, 0]))
-
-
-_STILL_PARALLAX_SIGMAS = 2.0 * float(np.sqrt(np.log(2.0)))  # 1.665
 
 
 def _least_distance(speed: float, dt: float, deceleration: float) -> float:

@@ -77,16 +77,22 @@ def _with_box(rig):
     return dataclasses.replace(rig, bodies={**rig.bodies, "trailer": trailer})
 
 
-def _observe_tractor(rig, points_i: np.ndarray, points_j: np.ndarray, frame_j: int) -> tuple[dict, dict]:
-    """Tractor cameras' observations of points given in the tractor frame at views i and j."""
+def _observe_tractor(rig, points_i: np.ndarray, points_j: np.ndarray, frame_j: int, noise_px: float = 0.0,
+                     rng: np.random.Generator | None = None, limit: int | None = None) -> tuple[dict, dict]:
+    """Tractor cameras' observations of points given in the tractor frame at views i and j (at most
+    ``limit`` per camera, with ``noise_px`` of Gaussian pixel noise drawn from ``rng``)."""
     first, second = {}, {}
     for camera in rig.cameras_on("tractor"):
         T_camera_body = np.linalg.inv(camera.T_body_camera)
         pixels_i, seen_i = camera.project(points_i @ T_camera_body[:3, :3].T + T_camera_body[:3, 3])
         pixels_j, seen_j = camera.project(points_j @ T_camera_body[:3, :3].T + T_camera_body[:3, 3])
-        seen = np.flatnonzero(seen_i & seen_j)
-        first[camera.name] = CameraObservations(camera.name, seen, pixels_i[seen], camera.unproject(pixels_i[seen]))
-        second[camera.name] = CameraObservations(camera.name, seen, pixels_j[seen], camera.unproject(pixels_j[seen]))
+        seen = np.flatnonzero(seen_i & seen_j)[:limit]
+        observed_i, observed_j = pixels_i[seen], pixels_j[seen]
+        if noise_px > 0.0:
+            observed_i = observed_i + rng.normal(0.0, noise_px, observed_i.shape)
+            observed_j = observed_j + rng.normal(0.0, noise_px, observed_j.shape)
+        first[camera.name] = CameraObservations(camera.name, seen, observed_i, camera.unproject(observed_i))
+        second[camera.name] = CameraObservations(camera.name, seen, observed_j, camera.unproject(observed_j))
     return first, second
 
 
@@ -191,16 +197,7 @@ def _still_and_creeping(rig, creep_m: float, noise_px: float, rng: np.random.Gen
     world = world[np.hypot(world[:, 0], world[:, 1]) > 5.0]
     T_i_j = make_pose(*ackermann_motion(0.0, creep_m, axle_x))
     world_j = (world - T_i_j[:3, 3]) @ T_i_j[:3, :3]
-    first, second = {}, {}
-    for camera in rig.cameras_on("tractor"):
-        T_camera_body = np.linalg.inv(camera.T_body_camera)
-        pixels_i, seen_i = camera.project(world @ T_camera_body[:3, :3].T + T_camera_body[:3, 3])
-        pixels_j, seen_j = camera.project(world_j @ T_camera_body[:3, :3].T + T_camera_body[:3, 3])
-        seen = np.flatnonzero(seen_i & seen_j)[:60]
-        noisy_i = pixels_i[seen] + rng.normal(0.0, noise_px, (len(seen), 2))
-        noisy_j = pixels_j[seen] + rng.normal(0.0, noise_px, (len(seen), 2))
-        first[camera.name] = CameraObservations(camera.name, seen, noisy_i, camera.unproject(noisy_i))
-        second[camera.name] = CameraObservations(camera.name, seen, noisy_j, camera.unproject(noisy_j))
+    first, second = _observe_tractor(rig, world, world_j, 10, noise_px, rng, limit=60)
     return FrameObservations(0, 0.0, first), FrameObservations(10, 1.0, second)
 
 
