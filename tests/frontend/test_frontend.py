@@ -11,7 +11,8 @@ import pytest
 
 from ampc_vo.epipolar import gec_sampson
 from ampc_vo.errors import ConfigError, DatasetError
-from ampc_vo.frontend.tracker import CameraTracker, corner_ratio, essential_from_bearings, flow_support, essential_sampson, epipolar_inliers, grid_cells, motion_from_essential, select_per_cell, track_forward_backward
+from ampc_vo.frontend.tracker import (CameraTracker, ScratchArrays, corner_ratio, essential_from_bearings, flow_support, essential_sampson, epipolar_inliers, grid_cells,
+                                      image_gradients, motion_from_essential, select_per_cell, structure_tensors, track_forward_backward)
 from ampc_vo.frontend.multi_camera import MultiCameraFrontend
 from ampc_vo.config import TrackerConfig, stereo_config_from_dict, tracker_config_from_dict
 from ampc_vo.geometry import triangulate_midpoint
@@ -152,6 +153,17 @@ def test_aperture_test_keeps_no_features_on_edges():
             assert first_ratio.min() >= ratio and support.min() >= ratio
 
 
+def test_essential_sampson_is_numpys_sum_to_the_bit():
+    """The residual's dot products written out (``_dot3``) give the bits of ``np.sum`` over the last
+    axis, so the RANSAC's inliers are those of the plain form."""
+    rng = np.random.default_rng(4)
+    essentials = rng.normal(size=(32, 3, 3))
+    bearings_i, bearings_j = (rays / np.linalg.norm(rays, axis=1, keepdims=True) for rays in rng.normal(size=(2, 300, 3)))
+    e_fj, et_fi = bearings_j @ np.swapaxes(essentials, -1, -2), bearings_i @ essentials
+    residual = np.sum(bearings_i * e_fj, axis=-1)
+    squared = np.sum(e_fj * e_fj, axis=-1) + np.sum(et_fi * et_fi, axis=-1) - 2.0 * residual * residual
+    np.testing.assert_array_equal(essential_sampson(essentials, bearings_i, bearings_j), residual / np.sqrt(np.maximum(squared, 1e-24)))
+
 def test_epipolar_ransac_on_bearings_rejects_outliers_for_wide_fisheye_rays():
     rng = np.random.default_rng(3)
     count = 200
@@ -220,6 +232,36 @@ def test_select_per_cell_takes_the_first_candidates_of_each_cell():
     cells = np.array([2, 0, 2, 2, 1, 0])
     quota = np.array([1, 0, 2])
     np.testing.assert_array_equal(select_per_cell(cells, quota), [0, 1, 2])
+
+
+def test_select_per_cell_with_a_test_keeps_the_first_passing_and_asks_about_no_more():
+    """With ``passes``: the same as dropping the failing candidates first, but each candidate is
+    asked about at most once and those behind a cell's quota never."""
+    rng = np.random.default_rng(5)
+    cells, quota, passing = rng.integers(0, 6, size=200), rng.integers(0, 8, size=6), rng.random(200) < 0.6
+    asked: list[int] = []
+
+    def passes(candidates: np.ndarray) -> np.ndarray:
+        asked.extend(candidates.tolist())
+        return passing[candidates]
+
+    kept = select_per_cell(cells, quota, passes)
+    np.testing.assert_array_equal(kept, np.flatnonzero(passing)[select_per_cell(cells[passing], quota)])
+    assert len(asked) == len(set(asked)) < 100
+    assert len(select_per_cell(cells, np.zeros(6, int), passes)) == 0
+
+
+def test_scratch_arrays_change_no_bit_of_the_aperture_test():
+    """Gradients and structure tensors in a tracker's reused arrays equal fresh ones to the bit, also
+    when the number of points grows and shrinks from call to call."""
+    scratch, rng = ScratchArrays(), np.random.default_rng(2)
+    for seed, count in ((0, 50), (1, 300), (2, 20)):
+        image = make_image(seed=seed)
+        gradients = image_gradients(image, scratch)
+        np.testing.assert_array_equal(gradients, image_gradients(image))
+        pixels = rng.uniform([-3.0, -3.0], [WIDTH + 2.0, HEIGHT + 2.0], size=(count, 2))
+        for reused, fresh in zip(structure_tensors(gradients, pixels, 15, scratch), structure_tensors(image_gradients(image), pixels, 15)):
+            np.testing.assert_array_equal(reused, fresh)
 
 
 def test_black_frame_gives_empty_observations_then_reinitialises_with_new_ids(caplog):
