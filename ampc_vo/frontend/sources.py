@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Callable, Iterator
 import numpy as np
 
 from ampc_vo.config import VoConfig
-from ampc_vo.io.frame_images import load_frame_images
+from ampc_vo.io.frame_images import FrameImageReader
 from ampc_vo.errors import DatasetError
 from ampc_vo.frontend.multi_camera import camera_capture_times, FrontendResult, MultiCameraFrontend
 from ampc_vo.frontend.stereo import match_stereo_image, observations_with_stereo
@@ -59,7 +59,9 @@ class FrameStep:
     observations: FrameObservations
     images: dict[str, np.ndarray | None] | None = None
     frontend: FrontendResult | None = None
-    seconds: float | None = None  # time spent producing it (decode + frontend), for the timing breakdown
+    # time spent producing it (waiting for its images, read while the previous frame was tracked, + the
+    # frontend), for the timing breakdown
+    seconds: float | None = None
 
 
 @dataclass
@@ -86,8 +88,9 @@ class Sequence:
 
 def _pipelined(frames: range, produce: Callable[[int], FrameStep], in_thread: bool) -> Iterator[FrameStep]:
     """``produce(frame)`` for every frame of ``frames`` in order; with ``in_thread`` the next frame is produced
-    (decoded and tracked: OpenCV releases the GIL) in a worker thread while the caller runs the
-    backend on this one. The frontend's state is only touched by that one worker, in frame order."""
+    (tracked, its images read ahead by a :class:`FrameImageReader`: OpenCV releases the GIL) in a worker
+    thread while the caller runs the backend on this one. The frontend's state is only touched by that
+    one worker, in frame order."""
     if not in_thread:
         for frame in frames:
             yield produce(frame)
@@ -134,16 +137,18 @@ def image_steps(dataset: object, rig: Rig, config: VoConfig, frames: range,
                 stereo_pairs: tuple[tuple[str, str], ...] = ()) -> Iterator[FrameStep]:
     """The image frontend over the ``frames`` of ``dataset`` (``camera_names``,
     ``timestamps``, ``load_image``); a missing or corrupt image is logged and that camera re-initialises. With
-    ``config.threads`` > 1 cameras are tracked in parallel; with ``config.frontend_worker`` thread
-    the next frame is decoded and tracked while the backend works on this one (:func:`_pipelined`;
-    for ``process`` see :func:`_frontend_stream`)."""
-    with MultiCameraFrontend(rig, config.frontend, stereo_pairs=stereo_pairs, stereo_config=config.stereo, threads=config.threads) as frontend:
+    ``config.threads`` > 1 cameras are tracked in parallel, and decoded in parallel; the next frame's
+    images are read while this one is tracked (:class:`FrameImageReader`); with
+    ``config.frontend_worker`` thread the next frame is tracked while the backend works on this one
+    (:func:`_pipelined`; for ``process`` see :func:`_frontend_stream`)."""
+    with (MultiCameraFrontend(rig, config.frontend, stereo_pairs=stereo_pairs, stereo_config=config.stereo, threads=config.threads) as frontend,
+          FrameImageReader(dataset, frames, config.threads) as reader):
 
         def produce(frame: int) -> FrameStep:
             started = time.perf_counter()
-            images = load_frame_images(dataset, frame)
-            result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), images, camera_capture_times(dataset, frame))
-            return FrameStep(result.observations, images, result, time.perf_counter() - started)
+            read = reader.take(frame)
+            result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), read.images, camera_capture_times(dataset, frame))
+            return FrameStep(result.observations, read.images, result, time.perf_counter() - started)
 
         yield from _pipelined(frames, produce, config.frontend_worker == "thread")
 
@@ -159,11 +164,11 @@ def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, frames: rang
     and :mod:`ampc_vo.scale.stereo` use. About half the tracking cost of tracking both cameras."""
     seconds = {second for _, second in stereo_pairs}
     tracked = dataclasses.replace(rig, cameras=tuple(camera for camera in rig.cameras if camera.name not in seconds))
-    with MultiCameraFrontend(tracked, config.frontend, threads=config.threads) as frontend:
+    with MultiCameraFrontend(tracked, config.frontend, threads=config.threads) as frontend, FrameImageReader(dataset, frames, config.threads) as reader:
 
         def produce(frame: int) -> FrameStep:
             started = time.perf_counter()
-            images = load_frame_images(dataset, frame)
+            images = reader.take(frame).images
             result = frontend.process_with_details(frame, float(dataset.timestamps[frame]), {name: images.get(name) for name in frontend.trackers},
                                                    camera_capture_times(dataset, frame))
             stereo = {}

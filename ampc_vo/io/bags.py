@@ -22,9 +22,10 @@ camera; a camera without a topic, a topic missing from the log, or a camera whos
 overlap the reference's (another clock) are a :class:`DatasetError`.
 
 The log is indexed once (header stamps read from the serialised messages, no image decoded) with a
-progress bar over its duration; images are fetched per frame by their log time and decoded on
-demand. A :class:`Recording` pickles without its open reader (the frontend worker process reopens
-the log).
+progress bar over its duration; images are fetched per frame by their log time (all cameras of a
+frame at once, :meth:`Recording.fetch_frame`, in one thread) and decoded on demand (the cameras may
+be decoded in parallel threads, ``ampc_vo.io.frame_images``). A :class:`Recording` pickles without
+its open reader (the frontend worker process reopens the log).
 """
 from __future__ import annotations
 
@@ -399,17 +400,28 @@ class Recording:
             raise DatasetError(f"{self.root}: frame {frame}: cannot read its images ({type(error).__name__}: {error})") from None
         return messages
 
-    def load_image(self, frame: int, camera: str) -> np.ndarray:
-        """The grey ``uint8`` image of ``camera`` in ``frame``; :class:`DatasetError` when the frame
-        has none from that camera or it cannot be decoded or has another size than the rig's."""
-        if camera not in self.camera_names:
-            raise DatasetError(f"{self.root}: no camera named {camera!r} (cameras: {list(self.camera_names)})")
+    def _cached_messages(self, frame: int) -> dict[str, object]:
+        """The image messages of ``frame``, read once per frame (the last frame's are kept for the
+        cameras that follow); :class:`DatasetError` for a frame out of range or a log that cannot be read."""
         if not 0 <= frame < len(self):
             raise DatasetError(f"{self.root}: frame {frame} out of range [0, {len(self)})")
         with self._lock:
             if self._cache is None or self._cache[0] != frame:
                 self._cache = (frame, self._frame_messages(frame))
-            messages = self._cache[1]
+            return self._cache[1]
+
+    def fetch_frame(self, frame: int) -> None:
+        """Read the image messages of ``frame`` in the calling thread, so that the cameras'
+        :meth:`load_image` calls that follow only decode them and can run in other threads without
+        each opening the log (``ampc_vo.io.frame_images``); :class:`DatasetError` as :meth:`load_image`."""
+        self._cached_messages(frame)
+
+    def load_image(self, frame: int, camera: str) -> np.ndarray:
+        """The grey ``uint8`` image of ``camera`` in ``frame``; :class:`DatasetError` when the frame
+        has none from that camera or it cannot be decoded or has another size than the rig's."""
+        if camera not in self.camera_names:
+            raise DatasetError(f"{self.root}: no camera named {camera!r} (cameras: {list(self.camera_names)})")
+        messages = self._cached_messages(frame)
         if camera not in messages:
             raise DatasetError(f"{self.root}: frame {frame}: no image from camera {camera!r} (topic {self._topics[camera]}) near {self.timestamps[frame]:.3f} s")
         message, msgtype = messages[camera]

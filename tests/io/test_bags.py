@@ -214,3 +214,23 @@ def test_frames_extend_where_the_reference_camera_has_not_started_or_has_stopped
     np.testing.assert_allclose(grouping.timestamps, np.arange(13) * period, atol=1e-9)
     np.testing.assert_array_equal(grouping.indices["a"], list(range(10)) + [-1, -1, -1])
     np.testing.assert_array_equal(grouping.indices["b"], [-1, -1, -1] + list(range(10)))
+
+
+def test_a_recordings_frames_are_read_in_one_thread_and_decoded_in_parallel(folder, tmp_path, monkeypatch):
+    import threading
+
+    from ampc_vo.io import bags
+    from ampc_vo.io.frame_images import FrameImageReader
+
+    recording = read_recording(_log(folder, tmp_path, "mcap", compressed=("left", "rear"), image_format="png", drop={"right": (3,)}), folder.rig)
+    opened, open_reader = [], bags.open_reader
+    monkeypatch.setattr(bags, "open_reader", lambda path: opened.append(threading.current_thread().name) or open_reader(path))
+    with FrameImageReader(recording, range(FRAMES), threads=3) as reader:
+        for frame in range(FRAMES):
+            images = reader.take(frame).images
+            for camera in folder.camera_names:
+                if (camera, frame) == ("right", 3):
+                    assert images[camera] is None
+                else:
+                    np.testing.assert_array_equal(images[camera], folder.load_image(frame, camera))
+    assert len(opened) == 1 and opened[0].startswith("frame-reader")  # the log is opened and read by the reading thread only
