@@ -32,10 +32,11 @@ _TANGENT_DIM = {POSE: 6, SCALAR: 1}
 
 
 def _reader(kind: str) -> Callable[[gtsam.Values, int], object]:
+    """``Values.atPose3`` or ``Values.atDouble`` (unbound: ``read(values, key)``, no Python frame between)."""
     if kind == POSE:
-        return lambda values, key: values.atPose3(key)
+        return gtsam.Values.atPose3
     if kind == SCALAR:
-        return lambda values, key: values.atDouble(key)
+        return gtsam.Values.atDouble
     raise ValueError(f"unknown variable kind {kind!r}")
 
 
@@ -69,7 +70,7 @@ def make_error_function(keys: Sequence[int], kinds: Sequence[str], evaluate: Eva
     def error_function(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None = None) -> np.ndarray:
         variables = [read(values, key) for key, read in bound]
         if cache:
-            if last and all(_same(new, old) for new, old in zip(variables, last[0])):
+            if last and all(map(_same, variables, last[0])):
                 residual, jacobians = last[1], last[2]
             else:
                 residual, jacobians = evaluate(*variables, jacobians=True)

@@ -7,6 +7,9 @@ the right perturbation ``Exp([0, 0, delta, 0, 0, 0])`` of the hitch pose.
 """
 from __future__ import annotations
 
+import math
+from typing import Sequence
+
 import gtsam
 import numpy as np
 
@@ -19,8 +22,7 @@ def relative_motion(T_world_i: gtsam.Pose3, T_world_j: gtsam.Pose3) -> tuple[gts
     The Jacobian w.r.t. ``T_world_j`` is the identity (``-Ad(T_i_j^-1)`` w.r.t. ``T_world_i``).
     """
     jacobian_i = np.zeros((6, 6), order="F")
-    jacobian_j = np.zeros((6, 6), order="F")
-    T_i_j = T_world_i.between(T_world_j, jacobian_i, jacobian_j)
+    T_i_j = T_world_i.between(T_world_j, jacobian_i)
     return T_i_j, jacobian_i
 
 
@@ -41,16 +43,14 @@ def trailer_from_tractor(
     return T_world_trailer, jacobian_tractor
 
 
-def yaw_and_jacobian(rotation: np.ndarray) -> tuple[float, np.ndarray]:
+def yaw_and_jacobian(rotation: Sequence[Sequence[float]]) -> tuple[float, tuple[float, float, float]]:
     """Yaw ``phi = atan2(R10, R00)`` of a rotation (its z-rotation in the ZYX order) and
-    ``d phi / d omega`` (3,) for the right perturbation ``R Exp(omega)``.
+    ``d phi / d omega`` (3,) for the right perturbation ``R Exp(omega)``; ``rotation`` indexed
+    ``[row][column]`` (array or nested lists; scalar arithmetic).
 
     ``d R_k0 = (R [omega]x)_k0 = R_k1 omega_z - R_k2 omega_y``; undefined when ``R00 = R10 = 0``
     (pitch of +-90 degrees), which a road vehicle never reaches.
     """
-    r00, r10 = rotation[0, 0], rotation[1, 0]
+    (r00, r01, r02), (r10, r11, r12) = rotation[0], rotation[1]
     scale = 1.0 / (r00 * r00 + r10 * r10)
-    jacobian = np.array(
-        [0.0, r10 * rotation[0, 2] - r00 * rotation[1, 2], r00 * rotation[1, 1] - r10 * rotation[0, 1]]
-    ) * scale
-    return float(np.arctan2(r10, r00)), jacobian
+    return math.atan2(r10, r00), (0.0, (r10 * r02 - r00 * r12) * scale, (r00 * r11 - r10 * r01) * scale)

@@ -179,24 +179,26 @@ class EpipolarBlock:
     correspondences: BodyCorrespondences
 
 
-def huber_rows(whitened: np.ndarray, huber_k: float | None) -> tuple[np.ndarray, np.ndarray]:
+def huber_rows(whitened: np.ndarray, huber_k: float | np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """Per-residual Huber loss as residuals: ``z~ = sign(z) sqrt(2 rho(z))`` and ``d z~ / d z``.
 
     ``rho(z) = z^2 / 2`` for ``|z| <= k``, ``k |z| - k^2 / 2`` beyond, so ``|z~|^2 / 2`` summed is
     exactly the robust cost (which LM compares between steps) and the gradient ``z~ dz~/dz =
     rho'(z)`` is Huber's; the Gauss-Newton weight beyond k is ``k^2 / (2 k |z| - k^2)``.
-    ``huber_k=None``: plain least squares.
+    ``huber_k``: one threshold, one per row (``inf``: that row plain least squares), or None
+    (plain least squares).
     """
     if huber_k is None:
         return whitened, np.ones_like(whitened)
     magnitude = np.abs(whitened)
-    outside = magnitude > huber_k
+    outside = np.flatnonzero(magnitude > huber_k)  # indices: usually few rows, cheaper than a mask
     robust = whitened.copy()
     scale = np.ones_like(whitened)
-    if np.any(outside):
-        root = np.sqrt(2.0 * huber_k * magnitude[outside] - huber_k * huber_k)
+    if outside.size:
+        k = huber_k[outside] if isinstance(huber_k, np.ndarray) else huber_k
+        root = np.sqrt(2.0 * k * magnitude[outside] - k * k)
         robust[outside] = np.sign(whitened[outside]) * root
-        scale[outside] = huber_k / root
+        scale[outside] = k / root
     return robust, scale
 
 

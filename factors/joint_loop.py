@@ -34,14 +34,13 @@ def joint_loop_error(
     if not jacobians:
         return gtsam.Pose3.Logmap(predicted_trailer.between(T_world_trailer)), None
     between_predicted = np.zeros((6, 6), order="F")
-    between_trailer = np.zeros((6, 6), order="F")
-    error_pose = predicted_trailer.between(T_world_trailer, between_predicted, between_trailer)
+    error_pose = predicted_trailer.between(T_world_trailer, between_predicted)  # by T_world_trailer: the identity
     # zeros, not empty: gtsam 4.3 Pose3.Logmap leaves part of H unwritten for near-identity poses (NaN garbage)
     log_jacobian = np.zeros((6, 6), order="F")
     residual = gtsam.Pose3.Logmap(error_pose, log_jacobian)
     by_predicted = log_jacobian @ between_predicted
     # d predicted / d theta = [0, 0, 1, 0, 0, 0] (right perturbation of (Rz(theta), 0) about z)
-    return residual, [by_predicted @ predicted_from_tractor, log_jacobian @ between_trailer, by_predicted[:, 2:3].copy()]
+    return residual, [by_predicted @ predicted_from_tractor, log_jacobian, by_predicted[:, 2:3].copy()]
 
 
 def _rz(angle: float) -> tuple[np.ndarray, np.ndarray]:
@@ -66,13 +65,14 @@ def fifth_wheel_error(
     Jacobians: ``B J`` for the poses and ``B J_theta + dB/dtheta e`` for ``theta``."""
     residual, parts = joint_loop_error(T_world_tractor, T_world_trailer, hitch_angle, jacobians)
     rotation, derivative = _rz(float(hitch_angle))
-    turned = np.concatenate([rotation @ residual[:3], rotation @ residual[3:]])
+    halves = residual.reshape(2, 3)  # rotation and translation part of e
+    turned = (halves @ rotation.T).reshape(6)
     if not jacobians:
         return turned, None
-    block = np.zeros((6, 6))
-    block[:3, :3] = block[3:, 3:] = rotation
-    by_theta = block @ parts[2] + np.concatenate([derivative @ residual[:3], derivative @ residual[3:]])[:, None]
-    return turned, [block @ parts[0], block @ parts[1], by_theta]
+    columns = np.concatenate(parts, axis=1).reshape(2, 3, 13)  # [J_tractor | J_trailer | J_theta] by halves
+    jacobian = (rotation @ columns).reshape(6, 13)
+    jacobian[:, 12] += (halves @ derivative.T).reshape(6)
+    return turned, [jacobian[:, :6], jacobian[:, 6:12], jacobian[:, 12:]]
 
 
 class JointLoopFactor(gtsam.CustomFactor):

@@ -1,11 +1,14 @@
-"""Relative-pose prior between two ``Pose3`` keys, safe near the identity.
+"""Relative-pose prior between two ``Pose3`` keys.
 
     e = Log( Z^-1 T_world_i^-1 T_world_j )        (tangent [omega, v]: radians, metres)
 
-The same residual as ``gtsam.BetweenFactorPose3``; it exists because in gtsam 4.3 the Jacobian
-that ``Pose3.Logmap`` writes for near-identity poses (rotation below ~0.2 rad) leaves a block
-unwritten, so the C++ ``BetweenFactorPose3`` linearises to NaN/garbage exactly where priors on
-small motions live (standstill, predicted keyframe motion). Here the Jacobian buffer is zeroed.
+The same residual as ``gtsam.BetweenFactorPose3`` (``Z.localCoordinates(T_i_j)``, which is this
+Logmap in gtsam's Pose3 chart). :func:`between_prior` builds that C++ factor (no Python callback
+per evaluation: the smoother's motion priors); ``tests/factors/test_smooth_speed.py`` checks it
+against :class:`RelativePoseFactor` (error and whitened Jacobians to 1e-9) down to and at the
+identity. This Python factor zeroes the Jacobian buffers it hands to gtsam: an earlier note had
+the C++ factor's near-identity Jacobian NaN in gtsam 4.3, which the installed gtsam 4.3.0 does
+not reproduce (the test would catch it).
 """
 from __future__ import annotations
 
@@ -28,6 +31,12 @@ def relative_pose_error(measured: gtsam.Pose3, T_world_i: gtsam.Pose3, T_world_j
     residual = gtsam.Pose3.Logmap(error_pose, H_log)
     chain = H_log @ H_relative
     return residual, [chain @ H_i, chain @ H_j]
+
+
+def between_prior(key_i: int, key_j: int, measured: gtsam.Pose3, sigmas: np.ndarray) -> gtsam.BetweenFactorPose3:
+    """``T_world_i^-1 T_world_j ~ measured`` with diagonal ``sigmas`` (6,) in tangent order
+    ``[omega, v]``: :func:`relative_pose_error` as gtsam's C++ ``BetweenFactorPose3``."""
+    return gtsam.BetweenFactorPose3(key_i, key_j, measured, gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float)))
 
 
 class RelativePoseFactor(gtsam.CustomFactor):

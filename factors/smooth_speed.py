@@ -12,6 +12,7 @@ standstill (chord < 1e-6 m) the direction is undefined and that chord's Jacobian
 """
 from __future__ import annotations
 
+import math
 from functools import partial
 
 import gtsam
@@ -24,14 +25,15 @@ _MIN_CHORD_M = 1e-6
 
 
 def _chord_and_gradients(T_from: gtsam.Pose3, T_to: gtsam.Pose3) -> tuple[float, np.ndarray, np.ndarray]:
-    """``|p_to - p_from|`` and its (1, 6) Jacobians w.r.t. ``T_from`` and ``T_to``."""
-    delta = np.asarray(T_to.translation()) - np.asarray(T_from.translation())
-    length = float(np.linalg.norm(delta))
+    """``|p_to - p_from|`` and its (1, 6) Jacobians w.r.t. ``T_from`` and ``T_to`` (``u^T R`` is
+    ``R.unrotate(u)``: one gtsam call instead of numpy on 3-vectors)."""
+    delta = T_to.translation() - T_from.translation()
+    length = math.sqrt(float(delta @ delta))
     H_from, H_to = np.zeros((1, 6)), np.zeros((1, 6))
     if length > _MIN_CHORD_M:
         direction = delta / length
-        H_to[0, 3:] = direction @ T_to.rotation().matrix()
-        H_from[0, 3:] = -direction @ T_from.rotation().matrix()
+        H_to[0, 3:] = T_to.rotation().unrotate(direction)
+        H_from[0, 3:] = -T_from.rotation().unrotate(direction)
     return length, H_from, H_to
 
 

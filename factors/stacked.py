@@ -43,7 +43,12 @@ class Term:
 
 
 class StackedFactor(gtsam.CustomFactor):
-    """The terms of the module docstring as one factor on the union of their keys (first-appearance order)."""
+    """The terms of the module docstring as one factor on the union of their keys (first-appearance order).
+
+    One evaluation calls each term once, then whitens the stacked residual by the per-row inverse
+    sigmas and applies Huber per row (:func:`factors.epipolar.huber_rows` with a per-row threshold,
+    infinite for Gaussian rows) in one pass: the same values as term by term, fewer numpy calls.
+    """
 
     def __init__(self, terms: Sequence[Term]) -> None:
         if not terms:
@@ -51,43 +56,67 @@ class StackedFactor(gtsam.CustomFactor):
         keys: list[int] = []
         kinds: list[str] = []
         prepared = []
+        inverse_sigmas: list[np.ndarray] = []
+        thresholds: list[np.ndarray] = []
         offset = 0
         for term in terms:
-            if len(term.keys) != len(term.kinds) or len(set(term.keys)) != len(term.keys):
-                raise ValueError(f"term keys {term.keys} and kinds {term.kinds} must match and be distinct")
-            sigmas = np.asarray(term.sigmas, dtype=float).reshape(-1)
-            if sigmas.size == 0 or not np.all(np.isfinite(sigmas) & (sigmas > 0)):
-                raise ValueError(f"term sigmas must be positive and finite, got {term.sigmas!r}")
-            if term.huber_k is not None and not term.huber_k > 0:
-                raise ValueError(f"huber_k must be positive or None, got {term.huber_k!r}")
-            positions = []
-            for key, kind in zip(term.keys, term.kinds):
-                key = check_key(key)
-                if key not in keys:
-                    keys.append(key)
-                    kinds.append(kind)
-                elif kinds[keys.index(key)] != kind:
-                    raise ValueError(f"key {key} is used as {kinds[keys.index(key)]!r} and as {kind!r}")
-                positions.append(keys.index(key))
-            rows = slice(offset, offset + sigmas.size)
+            sigmas = _checked_sigmas(term)
+            positions = tuple(_position(key, kind, keys, kinds) for key, kind in zip(term.keys, term.kinds))
+            prepared.append((term.evaluate, positions, slice(offset, offset + sigmas.size), (sigmas.size,)))
             offset += sigmas.size
-            prepared.append((term.evaluate, tuple(positions), rows, 1.0 / sigmas, term.huber_k))
-        dims = [_TANGENT_DIM[kind] for kind in kinds]
-        total = offset
-
-        def evaluate(*variables, jacobians=False, prepared=tuple(prepared), dims=tuple(dims), total=total):
-            residual = np.empty(total)
-            blocks = [np.zeros((total, dim)) for dim in dims]
-            for term_evaluate, positions, rows, inverse_sigmas, huber_k in prepared:
-                term_residual, term_jacobians = term_evaluate(*[variables[position] for position in positions], jacobians=True)
-                if term_residual.shape != inverse_sigmas.shape:
-                    raise ValueError(f"a term returned {term_residual.shape[0]} residuals, its sigmas have {inverse_sigmas.shape[0]}")
-                robust, scale = huber_rows(term_residual * inverse_sigmas, huber_k)
-                residual[rows] = robust
-                weight = (scale * inverse_sigmas)[:, None]
-                for position, jacobian in zip(positions, term_jacobians):
-                    blocks[position][rows] = jacobian * weight
-            return residual, (blocks if jacobians else None)
-
-        super().__init__(gtsam.noiseModel.Unit.Create(total), keys, make_error_function(keys, kinds, evaluate))
+            inverse_sigmas.append(1.0 / sigmas)
+            thresholds.append(np.full(sigmas.size, np.inf if term.huber_k is None else float(term.huber_k)))
+        evaluate = _stacked_evaluate(
+            tuple(prepared), tuple(_TANGENT_DIM[kind] for kind in kinds), offset, np.concatenate(inverse_sigmas), np.concatenate(thresholds)
+        )
+        super().__init__(gtsam.noiseModel.Unit.Create(offset), keys, make_error_function(keys, kinds, evaluate))
         self.terms = tuple(terms)
+
+
+def _checked_sigmas(term: Term) -> np.ndarray:
+    """The term's sigmas as a flat float array, after checking its keys, kinds, sigmas and ``huber_k``."""
+    if len(term.keys) != len(term.kinds) or len(set(term.keys)) != len(term.keys):
+        raise ValueError(f"term keys {term.keys} and kinds {term.kinds} must match and be distinct")
+    sigmas = np.asarray(term.sigmas, dtype=float).reshape(-1)
+    if sigmas.size == 0 or not np.all(np.isfinite(sigmas) & (sigmas > 0)):
+        raise ValueError(f"term sigmas must be positive and finite, got {term.sigmas!r}")
+    if term.huber_k is not None and not term.huber_k > 0:
+        raise ValueError(f"huber_k must be positive or None, got {term.huber_k!r}")
+    return sigmas
+
+
+def _position(key: int, kind: str, keys: list[int], kinds: list[str]) -> int:
+    """Index of ``key`` among the factor's variables, appending it (with ``kind``) on first appearance."""
+    key = check_key(key)
+    if key not in keys:
+        keys.append(key)
+        kinds.append(kind)
+    elif kinds[keys.index(key)] != kind:
+        raise ValueError(f"key {key} is used as {kinds[keys.index(key)]!r} and as {kind!r}")
+    return keys.index(key)
+
+
+def _stacked_evaluate(prepared: tuple, dims: tuple[int, ...], total: int, inverse_sigmas: np.ndarray, thresholds: np.ndarray) -> Callable:
+    """``evaluate(*variables, jacobians)`` of a :class:`StackedFactor`: the terms' raw residuals and
+    Jacobians in their rows, then ``z~ = huber(r / sigma)`` and ``H~ = (dz~/dz / sigma) H`` on all
+    rows at once (module docstring)."""
+    robust = bool(np.any(np.isfinite(thresholds)))
+    threshold = thresholds if robust else None
+
+    def evaluate(*variables, jacobians=False):
+        residual = np.empty(total)
+        blocks = [np.zeros((total, dim)) for dim in dims]
+        for term_evaluate, positions, rows, shape in prepared:
+            term_residual, term_jacobians = term_evaluate(*[variables[position] for position in positions], jacobians=True)
+            if term_residual.shape != shape:
+                raise ValueError(f"a term returned {term_residual.shape[0]} residuals, its sigmas have {shape[0]}")
+            residual[rows] = term_residual
+            for position, jacobian in zip(positions, term_jacobians):
+                blocks[position][rows] = jacobian
+        whitened, scale = huber_rows(residual * inverse_sigmas, threshold)
+        weight = (scale * inverse_sigmas)[:, None]
+        for block in blocks:
+            block *= weight
+        return whitened, (blocks if jacobians else None)
+
+    return evaluate

@@ -17,13 +17,15 @@ true chord.
 """
 from __future__ import annotations
 
+import math
+
 import gtsam
 import numpy as np
 
 from factors._checks import check_distinct_keys, check_finite_scalar, check_noise_model
 from factors._custom import POSE, SCALAR, make_error_function
 from factors._lie import relative_motion
-from factors.nonholonomic import axle_displacement
+from factors.nonholonomic import axle_displacement, displacement_gradient
 
 _MIN_CHORD = 1e-9  # metres
 
@@ -37,17 +39,15 @@ def chord_error(
 ) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """Residual (1,) of the module docstring (metres) and, if ``jacobians``, two (1, 6) Jacobians."""
     T_i_j, between_i = relative_motion(T_world_i, T_world_j)
-    rotation = T_i_j.rotation().matrix()
-    displacement, displacement_by_omega = axle_displacement(rotation, T_i_j.translation(), np.array([axle_x, 0.0, 0.0]))
-    length = float(np.linalg.norm(displacement))
+    rows, (d_x, d_y, d_z) = axle_displacement(T_i_j, axle_x)
+    length = math.sqrt(d_x * d_x + d_y * d_y + d_z * d_z)
     residual = np.array([length - chord_length])
     if not jacobians:
         return residual, None
-    jacobian = np.zeros((1, 6))
-    if length > _MIN_CHORD:
-        direction = displacement / length
-        jacobian[0, :3] = direction @ displacement_by_omega
-        jacobian[0, 3:] = direction @ rotation
+    if length > _MIN_CHORD:  # d |d| = (d / |d|) . d(d)
+        jacobian = np.array([displacement_gradient((d_x / length, d_y / length, d_z / length), rows, axle_x)])
+    else:
+        jacobian = np.zeros((1, 6))
     return residual, [jacobian @ between_i, jacobian]
 
 

@@ -32,8 +32,8 @@ Factors added with keyframe k (``j`` < k are the keyframes still in the window):
   tracks) or an unobservable scale, a weak prior on the predicted motion keeps the system
   well-posed.
 
-The small residuals of keyframe k (planar, non-holonomic, motion priors, joint loop, scale chord)
-are terms of one :class:`factors.stacked.StackedFactor` (same error and linear system as one
+The small residuals of keyframe k (planar, non-holonomic, joint loop, scale chord) are terms of
+one :class:`factors.stacked.StackedFactor` (same error and linear system as one
 factor each); the smooth-speed prior keeps a factor of its own (it reaches back to k-2). Every
 Python factor caches its last evaluation (:mod:`factors._custom`), so LM's repeated evaluations
 at the same values and the marginals' linearisation cost no numpy work. LM stops after a
@@ -50,8 +50,8 @@ Every keyframe publishes the poses, θ and its 1-sigma from ``gtsam.Marginals``:
 (``output.publish: latest``, causal) or when it leaves the window (``lagged``, fully smoothed,
 the default). An update that fails (ill-conditioned window) is retried with the new keyframe
 anchored to its initial motion, and as a last resort the smoother restarts at that keyframe.
-Priors on relative poses use ``factors.relative_pose.RelativePoseFactor``, not gtsam's
-``BetweenFactorPose3``, whose Jacobian is NaN near the identity in gtsam 4.3.
+The motion priors are gtsam's ``BetweenFactorPose3`` (``factors.relative_pose.between_prior``, the
+same residual as the Python ``RelativePoseFactor`` of the recovery anchor, tested to the identity).
 """
 from __future__ import annotations
 
@@ -76,7 +76,7 @@ from factors.hitch_limit import HitchLimitFactor
 from factors.joint_loop import fifth_wheel_error
 from factors.nonholonomic import nonholonomic_error
 from factors.planar import planar_motion_error, planar_sigmas
-from factors.relative_pose import relative_pose_error
+from factors.relative_pose import between_prior
 from factors.stacked import StackedFactor, Term
 from factors.wheel_speed import chord_error, scaled_chord_error
 from factors.relative_pose import RelativePoseFactor
@@ -571,7 +571,7 @@ class ArticulatedSmoother:
             if standstill:
                 if own_motion:
                     tight = _pose_sigma_vector(np.radians(config.standstill_rotation_sigma_deg), config.standstill_translation_sigma_m)
-                    pending.terms.append(Term(pair, (POSE, POSE), partial(relative_pose_error, _IDENTITY_POSE), tight))
+                    pending.graph.add(between_prior(*pair, _IDENTITY_POSE, tight))
                 continue
             if body == "tractor" or self.trailer_nonholonomic:
                 pending.terms.append(Term(pair, (POSE, POSE), partial(nonholonomic_error, axle_x=self.rig.axle_x(body)),
@@ -583,7 +583,7 @@ class ArticulatedSmoother:
                 inflation = 1.0 if (status is not MotionStatus.OK or not linked) else 3.0
                 weak = _pose_sigma_vector(inflation * np.radians(config.weak_motion_rotation_sigma_deg), inflation * config.weak_motion_translation_sigma_m)
                 T_prior = gtsam.Pose3(relative_pose(self._pose(key(previous), pending), self._pose(key(k), pending)))
-                pending.terms.append(Term(pair, (POSE, POSE), partial(relative_pose_error, T_prior), weak))
+                pending.graph.add(between_prior(*pair, T_prior, weak))
                 self._add_smooth_speed(key, keyframe, pending)
             axle_x = self.rig.axle_x("tractor")
             if body == "tractor" and self.config.scale.wheel_speed and init.wheel_chord is not None:

@@ -106,3 +106,15 @@ def test_bad_terms_are_rejected():
     values = _values(np.random.default_rng(4))
     with pytest.raises(ValueError, match="sigmas have 2"):
         factor.error(values)
+
+
+def test_huber_rows_with_a_threshold_per_row_is_huber_row_by_row():
+    """:func:`huber_rows` with one threshold per row (``inf``: Gaussian) as the stacked factor uses it."""
+    from factors.epipolar import huber_rows
+
+    whitened = np.array([0.3, -2.0, 5.0, -0.1, 40.0, -7.0])
+    thresholds = np.array([1.0, 1.0, np.inf, 0.5, 2.0, np.inf])
+    robust, scale = huber_rows(whitened, thresholds)
+    for row, (value, threshold) in enumerate(zip(whitened, thresholds)):
+        expected, expected_scale = huber_rows(whitened[row:row + 1], None if np.isinf(threshold) else threshold)
+        assert robust[row] == expected[0] and scale[row] == expected_scale[0]

@@ -50,7 +50,7 @@ def test_bad_arguments():
 # ---------------------------------------------------------------------- factors.relative_pose
 @pytest.mark.parametrize("angle", [0.0, 1e-6, 1e-3, 0.05, 0.5])
 def test_relative_pose_factor_near_identity(angle):
-    """Finite, correct Jacobians where gtsam 4.3's BetweenFactorPose3 gives NaN (small rotations)."""
+    """Finite, correct Jacobians near the identity (small rotations), and the residual of ``BetweenFactorPose3``."""
     from factors.relative_pose import RelativePoseFactor
 
     rng = np.random.default_rng(1)
@@ -71,3 +71,28 @@ def test_relative_pose_factor_near_identity(angle):
     assert np.all(np.isfinite(jacobian))
     numerical = np.hstack([numericalDerivative21(error, first, second), numericalDerivative22(error, first, second)])
     np.testing.assert_allclose(jacobian, numerical, atol=1e-6)
+
+
+@pytest.mark.parametrize("scale", [0.0, 1e-9, 1e-6, 1e-3, 0.05, 0.5])
+def test_between_prior_is_the_relative_pose_factor(scale):
+    """The smoother's motion priors, gtsam's C++ ``BetweenFactorPose3`` (``between_prior``), give the
+    error and whitened linear system of the Python ``RelativePoseFactor`` it replaced (to 1e-9) at
+    random poses whose relative motion is ``scale`` away from the measurement, down to the identity
+    (the standstill prior) and exactly at it."""
+    from factors.relative_pose import RelativePoseFactor, between_prior
+
+    rng = np.random.default_rng(7)
+    sigmas = np.array([0.01, 0.02, 0.03, 0.1, 0.2, 0.3])
+    for measured in (gtsam.Pose3(), gtsam.Pose3.Expmap(rng.normal(size=6) * 0.3)):
+        for _ in range(20):
+            first = gtsam.Pose3.Expmap(rng.normal(size=6) * 2.0)
+            second = first.compose(measured).compose(gtsam.Pose3.Expmap(rng.normal(size=6) * scale))
+            values = _values([first, second])
+            replacement = between_prior(X(0), X(1), measured, sigmas)
+            reference = RelativePoseFactor(X(0), X(1), measured, gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+            assert replacement.error(values) == pytest.approx(reference.error(values), rel=1e-9, abs=1e-12)
+            matrix, rhs = replacement.linearize(values).jacobian()
+            expected_matrix, expected_rhs = reference.linearize(values).jacobian()
+            assert np.all(np.isfinite(matrix))
+            np.testing.assert_allclose(matrix, expected_matrix, rtol=1e-9, atol=1e-9 * np.abs(expected_matrix).max())
+            np.testing.assert_allclose(rhs, expected_rhs, rtol=1e-9, atol=1e-9)
