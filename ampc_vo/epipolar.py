@@ -175,13 +175,26 @@ def gec_sampson_jacobian(
     return sampson, gradients @ chain
 
 
-_NEXT = np.array([1, 2, 0])
-_AFTER_NEXT = np.array([2, 0, 1])
+def _gather_rows(pairs: tuple[tuple[int, int], ...], cross: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Row indices into ``rows = stack.reshape(3 K, N)``, a component-major stack of K vectors
+    (vector k, component c at row ``3 k + c``), such that ``rows[left] * rows[right]`` holds, for each pair (a, b),
+    the component products of ``a x b`` (``cross``: first half ``a_{c+1} b_{c+2}``, second half
+    ``a_{c+2} b_{c+1}``, in pair order) or of ``a . b`` (``a_c b_c``, grouped by pair)."""
+    if not cross:
+        left = [3 * a + c for a, _ in pairs for c in range(3)]
+        right = [3 * b + c for _, b in pairs for c in range(3)]
+        return np.array(left), np.array(right)
+    left = [3 * a + (c + 1) % 3 for a, _ in pairs for c in range(3)] + [3 * a + (c + 2) % 3 for a, _ in pairs for c in range(3)]
+    right = [3 * b + (c + 2) % 3 for _, b in pairs for c in range(3)] + [3 * b + (c + 1) % 3 for _, b in pairs for c in range(3)]
+    return np.array(left), np.array(right)
 
 
-def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of (N, 3) arrays (faster than ``np.cross`` for N ~ 1000)."""
-    return a[:, _NEXT] * b[:, _AFTER_NEXT] - a[:, _AFTER_NEXT] * b[:, _NEXT]
+# component-major stack of gec_sampson_pairs_jacobian: 0 f, 1 g = R f', 2 d, 3 g x d, 4 d x f, 5 f x g
+_CROSS_LEFT, _CROSS_RIGHT = _gather_rows(((1, 2), (2, 0), (0, 1)), cross=True)
+# dot products f.(g x d), g.(d x f), g.d, f.d, g.f
+_DOT_LEFT, _DOT_RIGHT = _gather_rows(((0, 3), (1, 4), (1, 2), (0, 2), (1, 0)), cross=False)
+# c_j x (b R) with the stack 0 a R, 1 b R, 2 c_j
+_CHAIN_LEFT, _CHAIN_RIGHT = _gather_rows(((2, 1),), cross=True)
 
 
 def gec_sampson_pairs_jacobian(
@@ -204,23 +217,34 @@ def gec_sampson_pairs_jacobian(
     Same formulas as :func:`gec_sampson_jacobian` (see its derivation) with the baseline
     ``d_n = R c_j,n + t - c_i,n`` per row; returns the residuals (N,) and, with ``jacobian``,
     the (N, 6) Jacobian of each row w.r.t. the right perturbation ``[omega, v]`` of its motion.
+
+    Computed component-major (vectors as (3, N) blocks of one stack) so that the three cross
+    products ``g x d``, ``d x f``, ``f x g`` and the five row-wise dot products are one gather,
+    one multiplication and one reduction each: the cost is dominated by the number of numpy
+    calls at these N, not by the arithmetic.
     """
-    bounds = [int(start) for start in pair_starts] + [bearings_i.shape[0]]
-    rotated_j = np.empty_like(bearings_j)  # g = R f'
-    rotated_center = np.empty_like(centers_j)  # R c_j
-    offsets = np.empty_like(centers_j)
+    count = bearings_i.shape[0]
+    bounds = [int(start) for start in pair_starts] + [count]
+    stack = np.empty((6, 3, count))  # f, g, d, g x d, d x f, f x g (component-major)
+    stack[0] = bearings_i.T
     for rotation, translation, start, stop in zip(rotations, translations, bounds[:-1], bounds[1:]):
-        rotated_j[start:stop] = bearings_j[start:stop] @ rotation.T
-        rotated_center[start:stop] = centers_j[start:stop] @ rotation.T
-        offsets[start:stop] = translation
-    baseline = rotated_center + offsets - centers_i
-    grad_f = _cross3(rotated_j, baseline)  # g x d
-    grad_g = _cross3(baseline, bearings_i)  # d x f
-    residual = _rowdot(bearings_i, grad_f)
-    g_dot_grad_g = _rowdot(grad_g, rotated_j)
-    tangent_f = grad_f - residual[:, None] * bearings_i
-    tangent_g = grad_g - g_dot_grad_g[:, None] * rotated_j
-    norm = np.sqrt(_rowdot(tangent_f, tangent_f) + _rowdot(tangent_g, tangent_g))
+        np.matmul(rotation, bearings_j[start:stop].T, out=stack[1, :, start:stop])  # g = R f'
+        block = stack[2, :, start:stop]
+        np.matmul(rotation, centers_j[start:stop].T, out=block)  # R c_j
+        block += translation[:, None]
+    stack[2] -= centers_i.T  # d = R c_j + t - c_i
+    rows = stack.reshape(18, count)
+    products = rows[_CROSS_LEFT] * rows[_CROSS_RIGHT]
+    np.subtract(products[:9], products[9:], out=rows[9:])
+    products = (rows[_DOT_LEFT] * rows[_DOT_RIGHT]).reshape(5, 3, count)
+    dots = products[:, 0] + products[:, 1]
+    dots += products[:, 2]
+    residual, g_dot_grad_g, g_dot_d, f_dot_d, g_dot_f = dots
+    tangents = stack[3:5] - dots[:2, None] * stack[:2]  # P_f (g x d), P_g (d x f)
+    tangents *= tangents
+    squares = tangents[:, 0] + tangents[:, 1]
+    squares += tangents[:, 2]
+    norm = np.sqrt(squares[0] + squares[1])
     clamped = np.maximum(norm, _MIN_SAMPSON_NORM)
     sampson = residual / clamped
     if not jacobian:
@@ -229,23 +253,19 @@ def gec_sampson_pairs_jacobian(
     s_over_n = sampson * inv_norm
     s_over_n2 = s_over_n * inv_norm
     alpha = (1.0 + 2.0 * s_over_n * residual) * inv_norm
-    g_dot_d = _rowdot(rotated_j, baseline)
-    f_dot_d = _rowdot(bearings_i, baseline)
-    g_dot_f = _rowdot(rotated_j, bearings_i)
-    s_g_dot_d = (s_over_n2 * g_dot_d)[:, None]
-    gradients = np.empty((residual.shape[0], 2, 3))
-    gradients[:, 0] = (alpha * g_dot_f)[:, None] * baseline - (alpha * g_dot_d)[:, None] * bearings_i + s_g_dot_d * grad_f  # g x ds/dg
-    gradients[:, 1] = (  # ds/dd
-        alpha[:, None] * _cross3(bearings_i, rotated_j)
-        + s_g_dot_d * rotated_j
-        + (s_over_n2 * f_dot_d)[:, None] * bearings_i
-        - (2.0 * s_over_n2)[:, None] * baseline
-    )
+    s_g_dot_d = s_over_n2 * g_dot_d
+    f, g, d, grad_f, _, f_cross_g = stack
+    gradients = np.empty((2, 3, count))  # a = g x ds/dg, b = ds/dd (component-major)
+    np.add((alpha * g_dot_f) * d - (alpha * g_dot_d) * f, s_g_dot_d * grad_f, out=gradients[0])
+    np.subtract(alpha * f_cross_g + s_g_dot_d * g + (s_over_n2 * f_dot_d) * f, (2.0 * s_over_n2) * d, out=gradients[1])
     # chain per motion (row vectors): J_omega = a R - b R [c_j]x = a R + c_j x (b R), J_v = b R
-    local = np.empty_like(gradients)
+    chain = np.empty((3, 3, count))  # a R, b R, c_j (component-major)
     for rotation, start, stop in zip(rotations, bounds[:-1], bounds[1:]):
-        local[start:stop] = gradients[start:stop] @ rotation
-    result = np.empty((residual.shape[0], 6))
-    result[:, :3] = local[:, 0] + _cross3(centers_j, local[:, 1])
-    result[:, 3:] = local[:, 1]
+        np.matmul(rotation.T, gradients[:, :, start:stop], out=chain[:2, :, start:stop])
+    chain[2] = centers_j.T
+    rows = chain.reshape(9, count)
+    products = rows[_CHAIN_LEFT] * rows[_CHAIN_RIGHT]
+    result = np.empty((count, 6))
+    np.add(chain[0], products[:3] - products[3:], out=result[:, :3].T)
+    result[:, 3:] = chain[1].T
     return sampson, result

@@ -418,3 +418,116 @@ def test_stacked_factor_with_per_row_centres_matches_numerical_derivatives():
     baselines = per_row.center_j @ T_i_j[:3, :3].T + T_i_j[:3, 3] - per_row.center_i  # one per row
     assert np.linalg.norm(baselines, axis=1).min() > 1.0 and np.ptp(baselines, axis=0).max() > 0.1
     _assert_gradient_matches_numerical(factor, values, poses)
+
+
+# ---------------------------------------------------------------------- gec_sampson_pairs_jacobian vs reference
+def _reference_pairs_jacobian(bearings_i, bearings_j, rotations, translations, centers_i, centers_j, pair_starts, jacobian=True):
+    """Straightforward row-major implementation of ampc_vo.epipolar.gec_sampson_pairs_jacobian
+    (its code before the component-major rewrite), the reference for equality to rounding."""
+    def cross(a, b):
+        return np.cross(a, b)
+
+    def rowdot(a, b):
+        return np.sum(a * b, axis=1)
+
+    bounds = [int(start) for start in pair_starts] + [bearings_i.shape[0]]
+    rotated_j = np.empty_like(bearings_j)
+    rotated_center = np.empty_like(centers_j)
+    offsets = np.empty_like(centers_j)
+    for rotation, translation, start, stop in zip(rotations, translations, bounds[:-1], bounds[1:]):
+        rotated_j[start:stop] = bearings_j[start:stop] @ rotation.T
+        rotated_center[start:stop] = centers_j[start:stop] @ rotation.T
+        offsets[start:stop] = translation
+    baseline = rotated_center + offsets - centers_i
+    grad_f = cross(rotated_j, baseline)
+    grad_g = cross(baseline, bearings_i)
+    residual = rowdot(bearings_i, grad_f)
+    tangent_f = grad_f - residual[:, None] * bearings_i
+    tangent_g = grad_g - rowdot(grad_g, rotated_j)[:, None] * rotated_j
+    norm = np.sqrt(rowdot(tangent_f, tangent_f) + rowdot(tangent_g, tangent_g))
+    clamped = np.maximum(norm, 1e-12)
+    sampson = residual / clamped
+    if not jacobian:
+        return sampson, None
+    inv_norm = (norm >= 1e-12) / clamped
+    s_over_n = sampson * inv_norm
+    s_over_n2 = s_over_n * inv_norm
+    alpha = (1.0 + 2.0 * s_over_n * residual) * inv_norm
+    g_dot_d = rowdot(rotated_j, baseline)
+    f_dot_d = rowdot(bearings_i, baseline)
+    g_dot_f = rowdot(rotated_j, bearings_i)
+    s_g_dot_d = (s_over_n2 * g_dot_d)[:, None]
+    gradients = np.empty((residual.shape[0], 2, 3))
+    gradients[:, 0] = (alpha * g_dot_f)[:, None] * baseline - (alpha * g_dot_d)[:, None] * bearings_i + s_g_dot_d * grad_f
+    gradients[:, 1] = (
+        alpha[:, None] * cross(bearings_i, rotated_j)
+        + s_g_dot_d * rotated_j
+        + (s_over_n2 * f_dot_d)[:, None] * bearings_i
+        - (2.0 * s_over_n2)[:, None] * baseline
+    )
+    local = np.empty_like(gradients)
+    for rotation, start, stop in zip(rotations, bounds[:-1], bounds[1:]):
+        local[start:stop] = gradients[start:stop] @ rotation
+    result = np.empty((residual.shape[0], 6))
+    result[:, :3] = local[:, 0] + cross(centers_j, local[:, 1])
+    result[:, 3:] = local[:, 1]
+    return sampson, result
+
+
+def _pairs_inputs(rng, count, pairs):
+    def unit(vectors):
+        return vectors / np.linalg.norm(vectors, axis=1, keepdims=True)
+
+    rotations = np.array([random_pose(rng, 1.0, 1.0).rotation().matrix() for _ in range(pairs)])
+    translations = rng.normal(0.0, 2.0, (pairs, 3))
+    centers_i = rng.normal(0.0, 3.0, (count, 3))
+    centers_j = np.where(rng.random((count, 1)) < 0.5, centers_i, rng.normal(0.0, 3.0, (count, 3)))  # both forms
+    starts = np.sort(np.concatenate([[0], rng.choice(np.arange(1, count), pairs - 1, replace=False)]))
+    return unit(rng.normal(size=(count, 3))), unit(rng.normal(size=(count, 3))), rotations, translations, centers_i, centers_j, starts
+
+
+def _assert_close_to_rounding(actual, expected):
+    np.testing.assert_allclose(actual, expected, rtol=1e-12, atol=1e-12 * np.max(np.abs(expected)))
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("count, pairs", [(1, 1), (20, 1), (150, 1), (340, 2), (600, 5)])
+def test_pairs_jacobian_equals_reference_implementation(seed, count, pairs):
+    from ampc_vo.epipolar import gec_sampson_pairs_jacobian
+
+    args = _pairs_inputs(np.random.default_rng(seed), count, pairs)
+    sampson, jacobian = gec_sampson_pairs_jacobian(*args)
+    expected_sampson, expected_jacobian = _reference_pairs_jacobian(*args)
+    assert jacobian.shape == (count, 6) and jacobian.flags.c_contiguous
+    _assert_close_to_rounding(sampson, expected_sampson)
+    _assert_close_to_rounding(jacobian, expected_jacobian)
+    only, none = gec_sampson_pairs_jacobian(*args, jacobian=False)
+    assert none is None
+    np.testing.assert_array_equal(only, sampson)
+
+
+def test_pairs_jacobian_zero_baseline_rows_match_reference_and_one_pair_form():
+    from ampc_vo.epipolar import gec_sampson_pairs_jacobian
+
+    rng = np.random.default_rng(4)
+    bearings_i, bearings_j, rotations, translations, centers_i, centers_j, starts = _pairs_inputs(rng, 40, 2)
+    # pair 1: zero translation and common centres -> zero baseline: residual 0, Jacobian 0
+    translations[1] = 0.0
+    centers_i[starts[1]:] = 0.0
+    centers_j[starts[1]:] = 0.0
+    args = (bearings_i, bearings_j, rotations, translations, centers_i, centers_j, starts)
+    sampson, jacobian = gec_sampson_pairs_jacobian(*args)
+    expected_sampson, expected_jacobian = _reference_pairs_jacobian(*args)
+    assert np.all(np.isfinite(jacobian))
+    np.testing.assert_array_equal(jacobian[starts[1]:], 0.0)
+    _assert_close_to_rounding(sampson, expected_sampson)
+    _assert_close_to_rounding(jacobian, expected_jacobian)
+    # pair 0 alone, one shared centre: gec_sampson_jacobian's values
+    stop = starts[1]
+    single, single_jacobian = gec_sampson_jacobian(bearings_i[:stop], bearings_j[:stop], rotations[0], translations[0], centers_i[0], centers_j[0])
+    shared = gec_sampson_pairs_jacobian(
+        bearings_i[:stop], bearings_j[:stop], rotations[:1], translations[:1],
+        np.tile(centers_i[0], (stop, 1)), np.tile(centers_j[0], (stop, 1)), np.array([0]),
+    )
+    _assert_close_to_rounding(shared[0], single)
+    _assert_close_to_rounding(shared[1], single_jacobian)
