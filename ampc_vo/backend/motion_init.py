@@ -13,6 +13,7 @@ by the prediction; the 2-point RANSAC only when that fails), and the chord becom
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import logging
 from dataclasses import dataclass
@@ -46,6 +47,8 @@ _DEFAULT_YAW_SIGMA = float(np.radians(0.1))
 # the trailer's box in the tractor's cameras (on_trailer_box): grown by this (m), at the window's
 # hitch angle +- this (radians; its error between keyframes), or around 0 +- the other before any
 _BOX_MARGIN_M = 0.05
+# keyframe motions kept for the path driven behind the axle (the ground plane's own lane)
+_DRIVEN_MOTIONS = 64
 _HITCH_MARGIN = float(np.radians(2.0))
 _UNKNOWN_HITCH_MARGIN = float(np.radians(10.0))
 
@@ -227,6 +230,8 @@ class MotionInitializer:
         self._rng = np.random.default_rng(config.ransac.seed)
         # (time, speed m/s) where the parallax first said standstill and the speed before forbade it
         self._standstill_refused: tuple[float, float] | None = None
+        # the tractor motions T_prev_k of the last keyframes, newest last: the path driven (_driven_path)
+        self._driven_motions: collections.deque[np.ndarray] = collections.deque(maxlen=_DRIVEN_MOTIONS)
         self.use_trailer = rig.has_trailer and config.mode != "tractor_only"
         self._ground_options = GroundScaleOptions(
             ground_z=rig.ground_z, pixel_sigma=config.smoother.pixel_sigma, height_sigma_m=config.scale.ground_height_sigma_m,
@@ -392,8 +397,8 @@ class MotionInitializer:
         if tractor.status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE, MotionStatus.STANDSTILL):
             inliers = _inlier_tracks(tractor_pairs, tractor.estimate.inlier_masks)
         if not self.use_trailer:
-            return self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=inliers, scale_chord=tractor.scale_chord), tractor_pairs,
-                                           first, second, tractor.estimate.yaw_sigma, speed_before)
+            return self._driven(self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=inliers, scale_chord=tractor.scale_chord),
+                                                        tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_before))
         hitch_prev = hitch = None
         trailer_status = MotionStatus.TOO_FEW_TRACKS
         trailer_pairs = camera_pairs(self.rig, "trailer", first, second)
@@ -447,8 +452,40 @@ class MotionInitializer:
                 else:
                     trailer_status = MotionStatus.TOO_FEW_TRACKS if trailer_status is not MotionStatus.STANDSTILL else trailer_status
                     T_trailer = predicted
-        return self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer, inlier_tracks=inliers,
-                                                  scale_chord=tractor.scale_chord), tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_before)
+        return self._driven(self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer,
+                                                               inlier_tracks=inliers, scale_chord=tractor.scale_chord),
+                                                    tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_before))
+
+    def _driven(self, init: MotionInit) -> MotionInit:
+        """``init``, its tractor motion kept as the newest piece of the path driven (:meth:`_driven_path`)."""
+        self._driven_motions.append(np.array(init.T_tractor, dtype=float))
+        return init
+
+    def _driven_path(self) -> np.ndarray | None:
+        """The tractor axle's positions on the path driven up to the newest keyframe, relative to its
+        position there in that keyframe's body frame, newest first ((M, 2), metres; None before two
+        keyframes): the kept keyframe motions chained backwards until ``scale.ground_lane_length_m``
+        of path, the oldest piece extended straight to that length (the road behind a truck that has
+        only just started). The ground plane's own lane behind the axle follows it (mirror cameras)."""
+        length_m = self.config.scale.ground_lane_length_m
+        axle = np.array([self.rig.axle_x("tractor"), 0.0, 0.0])
+        points, T_newest_k, travelled = [np.zeros(2)], np.eye(4), 0.0
+        for T_prev_k in reversed(self._driven_motions):
+            T_newest_k = T_newest_k @ np.linalg.inv(T_prev_k)
+            point = (T_newest_k[:3, :3] @ axle + T_newest_k[:3, 3] - axle)[:2]
+            step = float(np.linalg.norm(point - points[-1]))
+            if step < 1e-3:  # at rest
+                continue
+            points.append(point)
+            travelled += step
+            if travelled >= length_m:
+                break
+        if len(points) < 2:
+            return None
+        if travelled < length_m:
+            heading = (points[-1] - points[-2]) / np.linalg.norm(points[-1] - points[-2])
+            points.append(points[-1] + (length_m - travelled) * heading)
+        return np.array(points)
 
     def measured_chord(self, first: FrameObservations, second: FrameObservations, tractor: TractorMotion) -> tuple[float, float] | None:
         """The metric tractor axle chord ``(chord m, sigma m)`` of a motion measured by the ground
@@ -482,7 +519,8 @@ class MotionInitializer:
             time_scale = None if pair.times_i is None or interval <= 0.0 else (pair.times_j[keep] - pair.times_i[keep]) / interval
             correspondences.append((pair.camera, pair.bearings_i[keep], pair.bearings_j[keep], time_scale))
         yaw_sigma = max(float(yaw_sigma), _MIN_YAW_SIGMA) if np.isfinite(yaw_sigma) else _DEFAULT_YAW_SIGMA
-        measured = ground_plane_chord(correspondences, init.T_tractor, self.rig.axle_x("tractor"), self._ground_options, yaw_sigma)
+        measured = ground_plane_chord(correspondences, init.T_tractor, self.rig.axle_x("tractor"), self._ground_options, yaw_sigma,
+                                      driven=self._driven_path())
         if not measured.ok:
             logger.debug("frame %d: no ground-plane chord (%s, %d candidates)", second.frame, measured.status.value, measured.candidates)
             return init

@@ -225,3 +225,23 @@ def test_still_tracks_on_wide_cameras_are_a_standstill_under_pixel_noise() -> No
     creeping = _still_and_creeping(SEMITRAILER, 0.5, 0.8, rng)
     creep = make_pose(*ackermann_motion(0.0, 0.5, SEMITRAILER.axle_x("tractor")))  # the straight chord is not observable: the prediction's
     assert MotionInitializer(SEMITRAILER, default).tractor(*creeping, creep).status is not MotionStatus.STANDSTILL
+
+
+def test_the_path_driven_is_the_keyframe_motions_chained_backwards() -> None:
+    """The ground plane's own lane behind the axle (``_driven_path``): two 2 m straight keyframe
+    motions, then a rest, then a 2 m arc turning left by 10 deg put the axle's earlier positions
+    behind it and to its left in the newest body frame, the rest adds nothing, and the oldest
+    piece is extended straight to ``scale.ground_lane_length_m`` of path."""
+    initializer = MotionInitializer(RIG, VoConfig())
+    assert initializer._driven_path() is None
+    axle_x = RIG.axle_x("tractor")
+    straight = make_pose(*ackermann_motion(0.0, 2.0, axle_x))
+    turn = make_pose(*ackermann_motion(np.radians(10.0), 2.0, axle_x))
+    for motion in (straight, straight, np.eye(4), turn):
+        initializer._driven_motions.append(motion)
+    path = initializer._driven_path()
+    assert path.shape == (5, 2) and np.allclose(path[0], 0.0)
+    steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    assert np.allclose(steps[:3], 2.0, atol=1e-6)
+    assert np.sum(steps) == pytest.approx(VoConfig().scale.ground_lane_length_m)
+    assert np.all(path[1:, 0] < 0.0) and np.all(path[1:, 1] > 0.0)  # behind, and to the left

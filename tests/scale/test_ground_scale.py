@@ -417,6 +417,54 @@ def test_own_lane_follows_the_path_in_a_turn_and_reversing() -> None:
     assert result.chord == pytest.approx(1.6, rel=0.02)
 
 
+def test_own_lane_behind_the_axle_is_the_road_driven_not_the_turns_arc() -> None:
+    """Entering a 20 m radius turn, a mirror camera looking back sees the straight road the truck came
+    on: behind the axle the lane is the path driven (``driven``), where the turn's arc extrapolated
+    backwards lies 10 m to the side at 20 m (realistic stop_and_go on images: the whole view took over
+    there and read the turn's chords 5-7 % short). Points 3 m beside the road driven stay out; ahead
+    the arc is kept."""
+    from ampc_vo.scale.ground import in_own_lane
+
+    offset, height = np.array([2.0, 1.3, 0.0]), 2.5  # a left mirror, 2 m ahead of the axle, 2.5 m above the road
+    driven = np.array([[0.0, 0.0], [-40.0, 0.0]])   # straight behind
+    curvature = -1.0 / 20.0                           # turning right
+    along = np.linspace(-30.0, -5.0, 11)
+    for side, expected in ((0.0, True), (1.5, True), (3.5, False)):
+        ground = np.column_stack([along, np.full_like(along, side), np.full_like(along, -height)]) - offset
+        rays = ground / np.linalg.norm(ground, axis=1, keepdims=True)
+        assert np.all(in_own_lane(rays, offset, height, curvature, LANE, driven) == expected)
+        assert not in_own_lane(rays, offset, height, curvature, LANE)[along < -12.0].any()  # the arc behind misses the road
+    ahead = np.linspace(5.0, 15.0, 5)
+    on_arc = np.column_stack([ahead, 0.5 * curvature * ahead**2, np.full_like(ahead, -height)]) - offset
+    rays = on_arc / np.linalg.norm(on_arc, axis=1, keepdims=True)
+    assert in_own_lane(rays, offset, height, curvature, LANE, driven).all()
+
+
+def test_a_chord_from_beyond_the_lane_carries_the_roads_shape_in_its_sigma() -> None:
+    """With 3 points in the own lane and 200 on the far side of a 3 % crown the whole view's chord
+    is a few % off (median: calibrated plane -3 %, fitted plane +5 %, the plane tilting to the far side), the
+    same way for every point, so their number cannot shrink it: ``off_lane_slope_sigma`` (5 % of
+    cross-slope change at the lane's edge) puts it in the sigma, which then covers the error (|z|
+    at most 1.9 over seeds); without it the error reaches 4.8 sigma. Checked over seeds."""
+    for fit_plane in (False, True):
+        normalized, unexplained, errors = [], [], []
+        for seed in range(10):
+            rng = np.random.default_rng(90 + seed)
+            road = _crowned_road(rng, 1200, crown=0.03)
+            points = np.concatenate([road[np.abs(road[:, 1]) < 1.5][:3], road[road[:, 1] > 2.5][:200], _facade_points(rng, 60)])
+            bearings = _observe(FRONT, points, _motion(0.0, 1.6), rng)
+            options = dataclasses.replace(LANE, fit_plane=fit_plane)
+            honest = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, options)
+            bare = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, dataclasses.replace(options, off_lane_slope_sigma=1e-9))
+            assert honest.ok and bare.ok and honest.chord == bare.chord
+            errors.append(honest.chord / 1.6 - 1.0)
+            normalized.append((honest.chord - 1.6) / honest.sigma)
+            unexplained.append((bare.chord - 1.6) / bare.sigma)
+        assert np.median(np.abs(errors)) > 0.02
+        assert np.max(np.abs(normalized)) < 2.5
+        assert np.max(np.abs(unexplained)) > 3.5
+
+
 def test_own_lane_without_enough_points_widens_to_the_neighbouring_lanes_where_the_whole_view_disagrees() -> None:
     """A lane without texture (fewer than ``min_lane_points`` candidates in it) takes the whole view
     where it agrees with the road points within twice the lane's half width (a flat road: the
