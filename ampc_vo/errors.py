@@ -13,6 +13,12 @@ EXIT_SIGINT = 130  # 128 + SIGINT (2), what shells report for Ctrl-C
 EXIT_SIGTERM = 143  # 128 + SIGTERM (15): timeout, systemd, docker stop
 
 
+def first_line(error: BaseException) -> str:
+    """The first non-empty line of an exception's message, for one-line logs and summaries (GTSAM's
+    messages begin with a newline), or the exception type's name when it has none."""
+    return next((line.strip() for line in str(error).splitlines() if line.strip()), type(error).__name__)
+
+
 class AmpcError(Exception):
     """Base class of every error ampc-vo raises on purpose."""
 

@@ -79,3 +79,14 @@ def test_a_moved_key_says_where_it_went():
 
     with pytest.raises(ConfigError, match="scale.ground_z_m: replaced by hitch_height in rig.yaml"):
         config_from_dict({"scale": {"ground_z_m": -1.2}}, "vo.yaml")
+
+
+def test_first_line_of_an_error_skips_the_empty_lines_gtsam_begins_with() -> None:
+    """One-line logs and batch summaries (``ampc_vo.errors.first_line``): GTSAM's indeterminant-system
+    message starts with a newline, which gave an empty "()" in the marginals' warning."""
+    from ampc_vo.errors import first_line
+
+    gtsam_like = RuntimeError("\nIndeterminant linear system detected while working near variable\n8070450532247928832 (Symbol: p0).\n")
+    assert first_line(gtsam_like) == "Indeterminant linear system detected while working near variable"
+    assert first_line(RuntimeError("")) == "RuntimeError"
+    assert first_line(ValueError("one\ntwo")) == "one"

@@ -67,6 +67,7 @@ from gtsam.symbol_shorthand import A, W, X, Y
 
 from ampc_vo.config import VoConfig
 from ampc_vo.epipolar import gec_sampson
+from ampc_vo.errors import first_line
 from ampc_vo.geometry import make_pose, relative_pose, rot_z, wrap_angle, yaw_of
 from ampc_vo.observations import CameraObservations, FrameObservations, match_tracks, usable_landmarks
 from ampc_vo.rig import Camera, Rig
@@ -947,7 +948,7 @@ class ArticulatedSmoother:
         try:
             return gtsam.Marginals(self._smoother.getFactors(), self._estimate)
         except RuntimeError as error:
-            logger.warning("keyframe %d: marginal covariance not available (%s)", k, str(error).splitlines()[0])
+            logger.warning("keyframe %d: marginal covariance not available (%s): the last hitch sigma is kept", k, first_line(error))
             return None
 
     def _marginal_sigma(self, key: int) -> float | None:

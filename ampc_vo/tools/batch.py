@@ -90,10 +90,12 @@ def run_job(job: BatchJob) -> dict:
             row.update(tractor_ate_m=metrics.tractor_ate_m, trailer_ate_m=metrics.trailer_ate_m, hitch_rmse_deg=metrics.hitch_rmse_deg,
                        tractor_rpe_percent=metrics.tractor_rpe_percent)
     except Exception as error:  # one log's failure is reported, the batch goes on
-        from ampc_vo.errors import AmpcError
+        from ampc_vo.errors import AmpcError, first_line
 
-        reason = str(error) if isinstance(error, AmpcError) else f"{type(error).__name__}: {error}"
-        row["status"] = f"failed: {reason.splitlines()[0] if reason else type(error).__name__}"
+        reason = first_line(error)
+        if not isinstance(error, AmpcError) and reason != type(error).__name__:
+            reason = f"{type(error).__name__}: {reason}"
+        row["status"] = f"failed: {reason}"
         if not isinstance(error, AmpcError):
             logger.error("%s: %s", job.log, traceback.format_exc())
     try:
