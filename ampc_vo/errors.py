@@ -14,9 +14,16 @@ EXIT_SIGTERM = 143  # 128 + SIGTERM (15): timeout, systemd, docker stop
 
 
 def first_line(error: BaseException) -> str:
-    """The first non-empty line of an exception's message, for one-line logs and summaries (GTSAM's
-    messages begin with a newline), or the exception type's name when it has none."""
-    return next((line.strip() for line in str(error).splitlines() if line.strip()), type(error).__name__)
+    """An exception's message in one line, for logs and summaries: its first paragraph (the non-empty
+    lines up to the next empty one, joined; GTSAM's begin with a newline and name the variable on
+    their second line), or the exception type's name when it has none."""
+    paragraph: list[str] = []
+    for line in str(error).splitlines():
+        if line.strip():
+            paragraph.append(line.strip())
+        elif paragraph:
+            break
+    return " ".join(paragraph) if paragraph else type(error).__name__
 
 
 class AmpcError(Exception):

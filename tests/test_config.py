@@ -83,10 +83,11 @@ def test_a_moved_key_says_where_it_went():
 
 def test_first_line_of_an_error_skips_the_empty_lines_gtsam_begins_with() -> None:
     """One-line logs and batch summaries (``ampc_vo.errors.first_line``): GTSAM's indeterminant-system
-    message starts with a newline, which gave an empty "()" in the marginals' warning."""
+    message starts with a newline, which gave an empty "()" in the marginals' warning, and names the
+    variable on its second line."""
     from ampc_vo.errors import first_line
 
-    gtsam_like = RuntimeError("\nIndeterminant linear system detected while working near variable\n8070450532247928832 (Symbol: p0).\n")
-    assert first_line(gtsam_like) == "Indeterminant linear system detected while working near variable"
+    gtsam_like = RuntimeError("\nIndeterminant linear system detected while working near variable\n8070450532247928832 (Symbol: p0).\n\nThought: ...")
+    assert first_line(gtsam_like) == "Indeterminant linear system detected while working near variable 8070450532247928832 (Symbol: p0)."
     assert first_line(RuntimeError("")) == "RuntimeError"
-    assert first_line(ValueError("one\ntwo")) == "one"
+    assert first_line(ValueError("one\n\ntwo")) == "one"
