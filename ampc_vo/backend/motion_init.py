@@ -22,7 +22,7 @@ import numpy as np
 
 from ampc_vo.config import VoConfig
 from ampc_vo.epipolar import gec_sampson
-from ampc_vo.geometry import make_pose, rays_hit_box, rot_z, yaw_of
+from ampc_vo.geometry import invert_pose, make_pose, rays_hit_box, rot_z, yaw_of
 from ampc_vo.scale.ground import GroundScaleOptions, ground_plane_chord
 from ampc_vo.observations import FrameObservations, match_tracks
 from ampc_vo.rig import BodyBox, Camera, Rig
@@ -471,7 +471,7 @@ class MotionInitializer:
         axle = np.array([self.rig.axle_x("tractor"), 0.0, 0.0])
         points, T_newest_k, travelled = [np.zeros(2)], np.eye(4), 0.0
         for T_prev_k in reversed(self._driven_motions):
-            T_newest_k = T_newest_k @ np.linalg.inv(T_prev_k)
+            T_newest_k = T_newest_k @ invert_pose(T_prev_k)
             point = (T_newest_k[:3, :3] @ axle + T_newest_k[:3, 3] - axle)[:2]
             step = float(np.linalg.norm(point - points[-1]))
             if step < 1e-3:  # at rest

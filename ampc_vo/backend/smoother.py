@@ -51,7 +51,7 @@ Every keyframe publishes the poses, θ and its 1-sigma from ``gtsam.Marginals``:
 the default). An update that fails (ill-conditioned window) is retried with the new keyframe
 anchored to its initial motion, and as a last resort the smoother restarts at that keyframe.
 The motion priors are gtsam's ``BetweenFactorPose3`` (``factors.relative_pose.between_prior``, the
-same residual as the Python ``RelativePoseFactor`` of the recovery anchor, tested to the identity).
+same residual as the Python ``RelativePoseFactor``, tested to the identity), also in the recovery anchor.
 """
 from __future__ import annotations
 
@@ -80,7 +80,6 @@ from factors.planar import planar_motion_error, planar_sigmas
 from factors.relative_pose import between_prior
 from factors.stacked import StackedFactor, Term
 from factors.wheel_speed import chord_error, scaled_chord_error
-from factors.relative_pose import RelativePoseFactor
 from factors.smooth_speed import SmoothSpeedFactor
 
 logger = logging.getLogger(__name__)
@@ -399,7 +398,7 @@ class ArticulatedSmoother:
         try:
             self._smoother.update(pending.graph, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap(), [index])
         except RuntimeError as error:
-            logger.warning("frame %d: refreshing the capture-time extrinsics failed (%s)", keyframe.frame, " ".join(str(error).split())[:240])
+            logger.warning("frame %d: refreshing the capture-time extrinsics failed (%s)", keyframe.frame, first_line(error))
             return False
         logger.debug("frame %d: capture-time extrinsics rebuilt from the optimised twist", keyframe.frame)
         return True
@@ -407,16 +406,15 @@ class ArticulatedSmoother:
     def _recover(self, keyframe: _Keyframe, pending: _Pending, error: RuntimeError) -> None:
         """An ill-conditioned window (e.g. a keyframe whose factors were all rejected): anchor the new
         keyframe to its initial values with moderate priors and optimise again (logged)."""
-        logger.warning("frame %d: smoother update failed (%s); anchoring the keyframe to its initial motion",
-                       keyframe.frame, " ".join(str(error).split())[:240])
+        logger.warning("frame %d: smoother update failed (%s); anchoring the keyframe to its initial motion", keyframe.frame, first_line(error))
         k = keyframe.index
         anchor = gtsam.NonlinearFactorGraph()
-        sigmas = _pose_sigmas(np.radians(0.5), 0.05)
+        sigmas = _pose_sigma_vector(np.radians(0.5), 0.05)
         keys = [X] + ([Y] if self.use_trailer and not self.joint else [])
         for key in keys:
             T_prior = relative_pose(pending.values.atPose3(key(k - 1)).matrix() if pending.values.exists(key(k - 1)) else self._estimate.atPose3(key(k - 1)).matrix(),
                                     pending.values.atPose3(key(k)).matrix())
-            anchor.add(RelativePoseFactor(key(k - 1), key(k), T_prior, sigmas))
+            anchor.add(between_prior(key(k - 1), key(k), gtsam.Pose3(T_prior), sigmas))
         if self.joint:
             anchor.add(gtsam.PriorFactorDouble(A(k), pending.values.atDouble(A(k)), gtsam.noiseModel.Isotropic.Sigma(1, np.radians(2.0))))
         try:

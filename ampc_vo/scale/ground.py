@@ -441,7 +441,7 @@ def _consensus_road_chord(per_camera: Sequence[PointChords], options: GroundScal
     return None if whole is None else whole[0]
 
 
-def _within_lane(per_camera: Sequence[PointChords], road_chord: float, yaw_per_travel: float, options: GroundScaleOptions,
+def _within_lane(per_camera: Sequence[PointChords], road_chord: float, curvature: float, options: GroundScaleOptions,
                  widening: float = 1.0, driven: np.ndarray | None = None, direction: float = 1.0) -> list[PointChords] | None:
     """``per_camera`` with the candidates restricted to the own lane (:func:`in_own_lane`, its half
     width ``lane_half_width_m`` times ``widening``): those that agree within
@@ -449,10 +449,8 @@ def _within_lane(per_camera: Sequence[PointChords], road_chord: float, yaw_per_t
     (:func:`_consensus_road_chord`: moving traffic in the lane ahead and its shadow on the road,
     which the ego-motion's epipolar geometry cannot tell from the static road, read as chords tens
     of % off, the road's shape beyond the lane a few %), when at least ``min_lane_points`` remain;
-    ``None`` otherwise. The path's curvature is ``yaw_per_travel`` (the yaw change, its sign flipped
-    when reversing) over ``road_chord``: the given motion's has no scale; ``driven``, ``direction``:
-    the path driven before and the direction of travel (:func:`in_own_lane`)."""
-    curvature = yaw_per_travel / road_chord
+    ``None`` otherwise. ``curvature``, ``driven``, ``direction``: the path ahead, the path driven
+    before and the direction of travel (:func:`in_own_lane`)."""
     band = dataclasses.replace(options, lane_half_width_m=widening * options.lane_half_width_m)
     in_lane = []
     for points in per_camera:
@@ -688,20 +686,21 @@ def ground_plane_chord(
     parallax = np.concatenate([points.parallax for points in per_camera])
     if parallax.size and float(np.median(parallax)) < options.min_parallax:
         return GroundChord(GroundScaleStatus.SMALL_BASELINE)
-    # the path's curvature is the yaw change over the signed chord (negative: reversing)
+    # the direction of travel (-1: reversing)
     direction = 1.0 if axle_chord_direction(T_i_j, axle_x)[0] >= 0.0 else -1.0
-    yaw_per_travel = direction * yaw_of(T_i_j)
     road_chord = _consensus_road_chord(per_camera, options) if options.lane_half_width_m is not None else None
     if road_chord is None:
         return _chord_of_points(per_camera, heights, options, yaw_sigma)
-    lane = _within_lane(per_camera, road_chord, yaw_per_travel, options, driven=driven, direction=direction)
+    # the path's curvature: the yaw change (its sign flipped when reversing) over the whole view's
+    # road chord (the given motion's has no scale)
+    curvature = direction * yaw_of(T_i_j) / road_chord
+    lane = _within_lane(per_camera, road_chord, curvature, options, driven=driven, direction=direction)
     if lane is not None:
         return _chord_of_points(lane, heights, options, yaw_sigma)
     # too few points in the own lane: the whole view, unless the points near the path (twice the
     # lane's half width) measure a different chord (the road beyond is not the lane's plane)
-    curvature = yaw_per_travel / road_chord
     whole = _chord_of_points(per_camera, heights, options, yaw_sigma)
-    near = _within_lane(per_camera, road_chord, yaw_per_travel, options, widening=2.0, driven=driven, direction=direction)
+    near = _within_lane(per_camera, road_chord, curvature, options, widening=2.0, driven=driven, direction=direction)
     band = _chord_of_points(near, heights, options, yaw_sigma) if near is not None and whole.ok else None
     # Hausman's test of nested estimates (on their statistical sigmas): the band's points are among
     # the whole view's, so under one plane the difference has the variance sigma_band^2 - sigma_whole^2
