@@ -26,6 +26,7 @@ the folder cannot provide is a :class:`DatasetError` that says what is missing.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -69,7 +70,9 @@ class Sequence:
     """An opened dataset: its rig, frame times, ground truth (if any) and a frame stream.
 
     ``kind``: ``"bearings"``, ``"images"`` or ``"kitti"``. ``steps()`` starts the stream from the
-    first frame (each call starts over, with fresh trackers). ``T_body_reference``: the frame in
+    first frame (each call starts over, with fresh trackers); ``steps(images=False)``: the steps
+    without their images (``FrameStep.images`` None), for a consumer that does not show them: a
+    frontend process then sends only its small results (1.2 MB less per frame of four 640x480 cameras). ``T_body_reference``: the frame in
     which the ground truth is compared (identity: the body; KITTI: the left camera).
     """
 
@@ -78,7 +81,7 @@ class Sequence:
     rig: Rig
     timestamps: np.ndarray
     truth: GroundTruth | None
-    steps: Callable[[], Iterator[FrameStep]]
+    steps: Callable[..., Iterator[FrameStep]]  # steps(images: bool = True)
     T_body_reference: np.ndarray = field(default_factory=lambda: np.eye(4))
     wheel_speed: WheelSpeed | None = None  # rear-axle speed samples (scale.wheel_speed_source)
 
@@ -104,16 +107,26 @@ def _pipelined(frames: range, produce: Callable[[int], FrameStep], in_thread: bo
 
 
 def _frontend_stream(make_steps: Callable[..., Iterator[FrameStep]], dataset: object, rig: Rig, config: VoConfig,
-                     *more: object) -> Iterator[FrameStep]:
+                     *more: object, images: bool = True) -> Iterator[FrameStep]:
     """``make_steps(dataset, rig, config, *more)`` (``more``: the frames, then any stereo pairs), in
     a worker process when ``config.frontend_worker`` is ``process`` (:func:`ampc_vo.frontend.worker.stream_in_process`: the
     frontend then shares no GIL with the backend). The simulated bearings a dataset may carry
-    stay here (the frontend does not need them)."""
+    stay here (the frontend does not need them); without ``images`` the worker drops each step's
+    images before sending it (:func:`_without_images`)."""
     if config.frontend_worker != "process":
         return make_steps(dataset, rig, config, *more)
     if dataclasses.is_dataclass(dataset) and getattr(dataset, "measurements", None) is not None:
         dataset = dataclasses.replace(dataset, measurements=None)
+    if not images:
+        make_steps = functools.partial(_without_images, make_steps)
     return _in_process_or_thread(make_steps, dataset, rig, config, more)
+
+
+def _without_images(make_steps: Callable[..., Iterator[FrameStep]], *args: object) -> Iterator[FrameStep]:
+    """The steps of ``make_steps(*args)`` without their images (run in the frontend's worker process,
+    so that they are not pickled across to the consumer)."""
+    for step in make_steps(*args):
+        yield dataclasses.replace(step, images=None)
 
 
 def _in_process_or_thread(make_steps: Callable[..., Iterator[FrameStep]], dataset: object, rig: Rig, config: VoConfig,
@@ -254,8 +267,8 @@ def without_cameras(sequence: Sequence, names: list[str] | tuple[str, ...]) -> S
     rig = dataclasses.replace(sequence.rig, cameras=cameras)
     logger.info("%s: running without cameras %s (left: %s)", sequence.path, ", ".join(sorted(dropped)), ", ".join(rig.camera_names))
 
-    def steps() -> Iterator[FrameStep]:
-        stream = sequence.steps()
+    def steps(images: bool = True) -> Iterator[FrameStep]:
+        stream = sequence.steps(images=images)
         try:
             for step in stream:
                 observations = dataclasses.replace(step.observations, cameras={name: camera for name, camera in step.observations.cameras.items() if name not in dropped})
@@ -283,7 +296,7 @@ def _open_log(path: Path, config: VoConfig, start: int, stop: int | None, rig: R
     frames = frame_selection(len(recording), start, stop, str(path))
     logger.info("%s: recording, %d frames of cameras %s (image frontend)", path, len(frames), ", ".join(recording.camera_names))
     return Sequence(path, "images", rig, recording.timestamps[frames.start:frames.stop], None,
-                    lambda: _frontend_stream(image_steps, recording, rig, config, frames))
+                    lambda images=True: _frontend_stream(image_steps, recording, rig, config, frames, images=images))
 
 
 def _open_folder(path: str | Path, config: VoConfig, start: int, stop: int | None) -> Sequence:
@@ -308,12 +321,12 @@ def _open_folder(path: str | Path, config: VoConfig, start: int, stop: int | Non
         if not dataset.has_images:
             raise DatasetError(f"{path}: source 'images' asked for, but frames.csv lists no images for some camera")
         logger.info("%s: %d frames of images from cameras %s (image frontend)", path, len(frames), ", ".join(dataset.camera_names))
-        return Sequence(path, "images", dataset.rig, timestamps, truth, lambda: _frontend_stream(image_steps, dataset, dataset.rig, config, frames))
+        return Sequence(path, "images", dataset.rig, timestamps, truth, lambda images=True: _frontend_stream(image_steps, dataset, dataset.rig, config, frames, images=images))
     if dataset.measurements is None:
         raise DatasetError(f"{path}: no images and no measurements.npz: nothing to run on")
     measurements = dataset.measurements
     logger.info("%s: %d frames of simulated bearing measurements", path, len(frames))
-    return Sequence(path, "bearings", dataset.rig, timestamps, truth, lambda: _bearing_steps(measurements, dataset.rig, frames))
+    return Sequence(path, "bearings", dataset.rig, timestamps, truth, lambda images=True: _bearing_steps(measurements, dataset.rig, frames))
 
 
 def _open_kitti(path: Path, config: VoConfig, start: int, stop: int | None) -> Sequence:
@@ -325,5 +338,5 @@ def _open_kitti(path: Path, config: VoConfig, start: int, stop: int | None) -> S
     frames = frame_selection(len(dataset), start, stop, str(path))
     logger.info("%s: KITTI folder, %d stereo frames", path, len(frames))
     return Sequence(path, "kitti", dataset.rig, dataset.timestamps[frames.start:frames.stop], dataset.truth,
-                    lambda: _frontend_stream(stereo_image_steps, dataset, dataset.rig, config, frames, ((LEFT, RIGHT),)),
+                    lambda images=True: _frontend_stream(stereo_image_steps, dataset, dataset.rig, config, frames, ((LEFT, RIGHT),), images=images),
                     T_body_reference=dataset.T_body_left_camera)

@@ -106,7 +106,7 @@ def run_sequence(sequence: Sequence, config: VoConfig, out_dir: str | Path, reru
             recorder.log_frame(estimate.frame, estimate.timestamp, T_world_tractor=estimate.T_world_tractor, T_world_trailer=estimate.T_world_trailer,
                                hitch_angle=estimate.hitch_angle, hitch_sigma=estimate.hitch_sigma)
 
-    steps = sequence.steps()
+    steps = sequence.steps(images=recorder is not None and config.rerun.image_every > 0)  # images cross from a frontend process only for a recording
     if wheel_odometry is None:
         wheel_odometry = sequence_wheel_odometry(sequence, config)
     try:

@@ -111,8 +111,8 @@ def test_a_failing_source_keeps_the_estimates_written_so_far(rendered, tmp_path)
     estimated until then (including those still in the smoother window) is in the output files."""
     sequence = open_sequence(rendered, VoConfig(source="bearings"))
 
-    def failing_steps():
-        for index, step in enumerate(sequence.steps()):
+    def failing_steps(images=True):
+        for index, step in enumerate(sequence.steps(images=images)):
             if index == 35:
                 raise DatasetError("camera unplugged")
             yield step
@@ -143,6 +143,14 @@ def test_frame_step_carries_images_and_frontend_details(rendered):
     assert second.frontend is not None
     tracked = sum(len(observations) for observations in second.observations.cameras.values())
     assert tracked >= 400
+    # without images (no recording to show them): the frontend process sends the same observations only
+    bare = open_sequence(rendered, VoConfig(frontend_worker="process")).steps(images=False)
+    bare_first, bare_second = next(bare), next(bare)
+    bare.close()
+    assert bare_first.images is None and bare_second.images is None and bare_second.frontend is not None
+    for name, camera in second.observations.cameras.items():
+        np.testing.assert_array_equal(bare_second.observations.cameras[name].track_ids, camera.track_ids)
+        np.testing.assert_array_equal(bare_second.observations.cameras[name].bearings, camera.bearings)
 
 
 def test_frontend_in_its_own_process_gives_the_inline_observations(rendered):
