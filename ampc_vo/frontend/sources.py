@@ -72,8 +72,9 @@ class Sequence:
     ``kind``: ``"bearings"``, ``"images"`` or ``"kitti"``. ``steps()`` starts the stream from the
     first frame (each call starts over, with fresh trackers); ``steps(images=False)``: the steps
     without their images (``FrameStep.images`` None), for a consumer that does not show them: a
-    frontend process then sends only its small results (1.2 MB less per frame of four 640x480 cameras). ``T_body_reference``: the frame in
-    which the ground truth is compared (identity: the body; KITTI: the left camera).
+    frontend process then sends only its small results (1.2 MB less per frame of four 640x480
+    cameras). ``T_body_reference``: the frame in which the ground truth is compared (identity: the
+    body; KITTI: the left camera).
     """
 
     path: Path
@@ -111,20 +112,20 @@ def _frontend_stream(make_steps: Callable[..., Iterator[FrameStep]], dataset: ob
     """``make_steps(dataset, rig, config, *more)`` (``more``: the frames, then any stereo pairs), in
     a worker process when ``config.frontend_worker`` is ``process`` (:func:`ampc_vo.frontend.worker.stream_in_process`: the
     frontend then shares no GIL with the backend). The simulated bearings a dataset may carry
-    stay here (the frontend does not need them); without ``images`` the worker drops each step's
-    images before sending it (:func:`_without_images`)."""
+    stay here (the frontend does not need them). Without ``images`` each step's images are dropped
+    where it is produced (:func:`_without_images`; in a worker process before it is sent)."""
+    if not images:
+        make_steps = functools.partial(_without_images, make_steps)
     if config.frontend_worker != "process":
         return make_steps(dataset, rig, config, *more)
     if dataclasses.is_dataclass(dataset) and getattr(dataset, "measurements", None) is not None:
         dataset = dataclasses.replace(dataset, measurements=None)
-    if not images:
-        make_steps = functools.partial(_without_images, make_steps)
     return _in_process_or_thread(make_steps, dataset, rig, config, more)
 
 
 def _without_images(make_steps: Callable[..., Iterator[FrameStep]], *args: object) -> Iterator[FrameStep]:
-    """The steps of ``make_steps(*args)`` without their images (run in the frontend's worker process,
-    so that they are not pickled across to the consumer)."""
+    """The steps of ``make_steps(*args)`` without their images (in a frontend worker process: not
+    pickled across to the consumer)."""
     for step in make_steps(*args):
         yield dataclasses.replace(step, images=None)
 
