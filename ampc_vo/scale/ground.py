@@ -81,12 +81,16 @@ there) measure a chord that differs from the whole view's by more than ``lane_co
 (2) times the spread of the difference of two nested estimates, ``sqrt(sigma_band^2 -
 sigma_whole^2)`` (Hausman's test: under one road plane the band and the whole view agree, and the
 whole view, with more points, is kept; a standing start's few metres of chord, where the band's
-points are too few to tell, keep the whole view too). A chord from points beyond the lane (the
-whole view or the band) carries the road's shape there in its sigma: a cross-slope change of
-``off_lane_slope_sigma`` (5 %: a crown's 2 x 2.5 %, shoulders, the crossing roads of an
-intersection) at the lane's edge puts a point ``d`` beyond it ``c d`` off the lane's plane, and its
-chord ``c d / h`` off, in the same direction for the points on that side: the mean of ``d / h`` over
-the road points times that sigma, added in quadrature (their number does not shrink it). In the
+points are too few to tell, keep the whole view too). Points beyond the lane (the whole view or
+the band) see the road's shape there: a cross-slope change ``c`` at the lane's edge (a crown's
+2 x 2.5 %, shoulders, the crossing roads of an intersection) puts a point ``d`` beyond it ``c d``
+below the lane's plane, and (G) reads it ``1 + c d / h`` too far, in the same direction for the
+points on that side, so their number does not shrink the error. The fitted plane therefore
+estimates that fall on either side with the plane (``off_lane_slope_sigma``, 5 %, its prior):
+each point's inverse chord modelled as ``q_k / (1 + c_side d_k / h)``, ``d_k`` its distance beyond
+the edge where its ray meets the calibrated plane; the fall's uncertainty is in the chord's
+marginal. With the calibrated plane (``fit_plane`` off) the chord's sigma is widened instead: the
+mean of ``d / h`` over the road points times that sigma, added in quadrature. In the
 realistic stop_and_go's 90° turn on images the whole view read the chords 5-7 % short with sigmas
 of 1 % (-5 to -8 sigma), the hitch angle that follows them 0.66° off at 2σ = 0.4°; with the
 off-lane sigma the turn leans on its other metric sources. Rendered images of plain asphalt hold few
@@ -181,6 +185,9 @@ class GroundScaleOptions:
     its path and this distance along it from the axle, when at least ``min_lane_points`` candidates
     lie there (enough for the plane's three parameters with some redundancy; ``None``: the whole view)
     and agree within ``lane_consensus_tolerance`` (relative) with the whole view's road.
+    ``off_lane_slope_sigma``: prior sigma of the road's cross-slope change at the own lane's edges
+    (module docstring, "Own lane"): the fitted plane estimates it per side, the calibrated plane
+    widens the chord's sigma by it.
     """
 
     ground_z: float = 0.0
@@ -229,6 +236,14 @@ class PointChords:
     parallax: np.ndarray
     ground_xy: np.ndarray
     rays: _Rays | None = None  # what (G) needs to re-evaluate with another normal or yaw
+    off_lane: np.ndarray | None = None  # (N,) signed metres beyond the own lane's edge (+ left, - right, 0 inside; None: no lane)
+
+    def off_lane_ratios(self) -> np.ndarray:
+        """(N, 2): metres beyond the lane's left and right edges over the camera's height (the
+        sensitivity of (G) to the road's fall there, module docstring "Own lane"); zeros without a lane."""
+        if self.off_lane is None or self.rays is None:
+            return np.zeros((self.chord.shape[0], 2))
+        return np.column_stack([np.maximum(self.off_lane, 0.0), np.maximum(-self.off_lane, 0.0)]) / self.rays.height
 
     def chords_for_normal(self, normal: np.ndarray) -> np.ndarray:
         """(G) of every correspondence for a tilted road normal (body frame, unit)."""
@@ -393,21 +408,24 @@ def path_distance(f: np.ndarray, offset: np.ndarray, height: float, curvature: f
                   direction: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where body-frame bearings ``f`` (N, 3) from a camera at ``offset`` from the axle midpoint,
     ``height`` above the road, meet the calibrated road plane, relative to the axle's path:
-    ``(along, distance, downward)`` (N,) each: metres along the body from the axle, metres from the
-    path, and the mask of rays that meet the plane. The path is the arc ``y = curvature x² / 2``
-    (x along the body from the axle), ahead and behind; with ``driven`` ((M, 2) axle positions of
-    the path driven before, relative to the axle, newest first), behind the axle (against
-    ``direction``, +1 forward, -1 reversing) it is that polyline instead: the mirror cameras look
-    back along the road the truck came on, which in a turn's entry is straight, not the turn's arc."""
+    ``(along, lateral, downward)`` (N,) each: metres along the body from the axle, signed metres
+    from the path (positive towards the body's +y, the left), and the mask of rays that meet the
+    plane. The path is the arc ``y = curvature x² / 2`` (x along the body from the axle), ahead and
+    behind; with ``driven`` ((M, 2) axle positions of the path driven before, relative to the axle,
+    newest first), behind the axle (against ``direction``, +1 forward, -1 reversing) it is that
+    polyline instead: the mirror cameras look back along the road the truck came on, which in a
+    turn's entry is straight, not the turn's arc."""
     downward = f[:, 2] < 0.0
     reach = height / np.where(downward, -f[:, 2], 1.0)
     along = offset[0] + reach * f[:, 0]
     beside = offset[1] + reach * f[:, 1]
-    distance = np.abs(beside - 0.5 * curvature * along**2)
+    lateral = beside - 0.5 * curvature * along**2
     if driven is not None and driven.shape[0] >= 2:
         behind = direction * along < 0.0
-        distance = np.where(behind, distance_to_polyline(np.column_stack([along, beside]), driven), distance)
-    return along, distance, downward
+        distance, side = _polyline_offset(np.column_stack([along, beside]), driven)
+        # the polyline runs from the axle against the direction of travel: its left is the body's right forward
+        lateral = np.where(behind, -direction * side * distance, lateral)
+    return along, lateral, downward
 
 
 def in_own_lane(f: np.ndarray, offset: np.ndarray, height: float, curvature: float, options: GroundScaleOptions,
@@ -417,19 +435,30 @@ def in_own_lane(f: np.ndarray, offset: np.ndarray, height: float, curvature: flo
     (:func:`path_distance`) and within ``lane_length_m`` of the axle along it. All True without a lane."""
     if options.lane_half_width_m is None:
         return np.ones(f.shape[0], bool)
-    along, distance, downward = path_distance(f, offset, height, curvature, driven, direction)
-    return downward & (distance <= options.lane_half_width_m) & (np.abs(along) <= options.lane_length_m)
+    along, lateral, downward = path_distance(f, offset, height, curvature, driven, direction)
+    return downward & (np.abs(lateral) <= options.lane_half_width_m) & (np.abs(along) <= options.lane_length_m)
 
 
 def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     """Distance (N,) of 2-D ``points`` (N, 2) to the polyline through ``polyline`` (M, 2), M >= 2."""
+    return _polyline_offset(points, polyline)[0]
+
+
+def _polyline_offset(points: np.ndarray, polyline: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (N,) of 2-D ``points`` (N, 2) to the polyline through ``polyline`` (M, 2), M >= 2,
+    and the side (N,): +1 left of its nearest segment (in the polyline's order), -1 right."""
     start, end = polyline[:-1], polyline[1:]
     segment = end - start
     length_squared = np.maximum(np.sum(segment**2, axis=1), 1e-12)
     relative = points[:, None, :] - start[None, :, :]
     fraction = np.clip(np.einsum("nmk,mk->nm", relative, segment) / length_squared, 0.0, 1.0)
     nearest = start[None, :, :] + fraction[:, :, None] * segment[None, :, :]
-    return np.min(np.linalg.norm(points[:, None, :] - nearest, axis=2), axis=1)
+    distances = np.linalg.norm(points[:, None, :] - nearest, axis=2)
+    closest = np.argmin(distances, axis=1)
+    rows = np.arange(points.shape[0])
+    along_segment, to_point = segment[closest], relative[rows, closest]
+    side = np.where(along_segment[:, 0] * to_point[:, 1] - along_segment[:, 1] * to_point[:, 0] >= 0.0, 1.0, -1.0)
+    return distances[rows, closest], side
 
 
 def _consensus_road_chord(per_camera: Sequence[PointChords], options: GroundScaleOptions) -> float | None:
@@ -532,6 +561,7 @@ class PlaneFit:
     tilt_variance: float
     birge: float
     inliers: np.ndarray
+    off_lane_slope: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
 
 
 def _candidate_chords(per_camera: Sequence[PointChords], tilt: np.ndarray) -> np.ndarray:
@@ -570,21 +600,37 @@ def _inverse_chords(per_camera: Sequence[PointChords], tilt: np.ndarray) -> np.n
     return np.where(chords < 1e12, 1.0 / chords, 0.0)
 
 
-def _plane_step(per_camera: Sequence[PointChords], inverse_sigmas: np.ndarray, tilt: np.ndarray, inverse: np.ndarray, inliers: np.ndarray,
-                prior_sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _modelled_inverse(inverse: np.ndarray, ratios: np.ndarray, slope: np.ndarray) -> np.ndarray:
+    """The inverse chords of the candidates corrected for the road's fall beyond the own lane: a
+    point ``e`` beyond the edge on a side falling by ``slope`` lies ``slope e`` below the lane's
+    plane, so (G) read it ``1 + slope e / h`` too far (``ratios``: ``e / h`` per side, (N, 2))."""
+    return inverse / (1.0 + ratios @ slope)
+
+
+def _plane_step(per_camera: Sequence[PointChords], inverse_sigmas: np.ndarray, tilt: np.ndarray, slope: np.ndarray, inverse: np.ndarray,
+                ratios: np.ndarray, inliers: np.ndarray, options: GroundScaleOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One Gauss-Newton step of the plane fit on the ``inliers`` in inverse chords: parameters
-    ``x = (q, delta_tilt)`` with ``q = 1 / rho``, rows ``(q - q_k(tilt) - J_k delta) / sigma_q,k``
-    (J: numerical derivative of ``1 / (G)`` in the tilt) and the prior rows
-    ``(tilt + delta) / prior_sigma``; ``inverse``: :func:`_inverse_chords` at ``tilt`` (the caller
-    has it from the inlier selection). Returns ``(x, normal matrix, data residuals)``."""
+    ``x = (q, delta_tilt, delta_slope)`` with ``q = 1 / rho``, rows ``(q - m_k - J_k delta) /
+    sigma_q,k`` with ``m_k = q_k(tilt) / (1 + r_k . slope)`` (:func:`_modelled_inverse`; J:
+    numerical derivative in the tilt, analytic in the off-lane slopes) and the prior rows
+    ``(tilt + delta) / normal_prior_sigma``, ``(slope + delta) / off_lane_slope_sigma``;
+    ``inverse``: :func:`_inverse_chords` at ``tilt`` (the caller has it from the inlier selection),
+    ``ratios`` (N, 2): :meth:`PointChords.off_lane_ratios` of the candidates. Returns ``(x, normal
+    matrix, data residuals)``."""
     step = 1e-5
-    values = inverse[inliers]
-    jacobian = np.column_stack([(_inverse_chords(per_camera, tilt + step * axis)[inliers] - values) / step for axis in np.eye(2)])
+    values, lane_ratios = inverse[inliers], ratios[inliers]
+    divisor = 1.0 + lane_ratios @ slope
+    modelled = values / divisor
+    tilt_jacobian = np.column_stack([(_inverse_chords(per_camera, tilt + step * axis)[inliers] - values) / step for axis in np.eye(2)]) / divisor[:, None]
+    slope_jacobian = -(modelled / divisor)[:, None] * lane_ratios
     weights = 1.0 / inverse_sigmas[inliers]
-    design = np.vstack([np.column_stack([weights, -jacobian * weights[:, None]]), np.column_stack([np.zeros(2), np.eye(2) / prior_sigma])])
-    target = np.concatenate([values * weights, -tilt / prior_sigma])
+    prior_rows = np.zeros((4, 5))
+    prior_rows[:2, 1:3] = np.eye(2) / options.normal_prior_sigma
+    prior_rows[2:, 3:] = np.eye(2) / options.off_lane_slope_sigma
+    design = np.vstack([np.column_stack([weights, -tilt_jacobian * weights[:, None], -slope_jacobian * weights[:, None]]), prior_rows])
+    target = np.concatenate([modelled * weights, -tilt / options.normal_prior_sigma, -slope / options.off_lane_slope_sigma])
     x = np.linalg.lstsq(design, target, rcond=None)[0]
-    residuals = (x[0] - values - jacobian @ x[1:]) * weights
+    residuals = (x[0] - modelled - tilt_jacobian @ x[1:3] - slope_jacobian @ x[3:]) * weights
     return x, design.T @ design, residuals
 
 
@@ -597,29 +643,32 @@ def _plane_inliers(inverse: np.ndarray, inverse_sigmas: np.ndarray, sigmas: np.n
 def fit_road_plane(per_camera: Sequence[PointChords], sigmas: np.ndarray, options: GroundScaleOptions) -> PlaneFit | None:
     """Road plane and chord from the candidates of ``per_camera`` (sigmas (N,) over the
     candidates): the best tilt hypothesis (:func:`_search_plane`), then ``plane_rounds`` of a
-    Gauss-Newton step in inverse chords (:func:`_plane_step`) and inlier re-selection at the new
-    plane (module docstring, "Road plane"). ``None`` when fewer than ``min_points`` road points remain."""
+    Gauss-Newton step in inverse chords (:func:`_plane_step`, with the road's fall beyond the own
+    lane on either side) and inlier re-selection at the new plane (module docstring, "Road plane").
+    ``None`` when fewer than ``min_points`` road points remain."""
     found = _search_plane(per_camera, sigmas, options)
     if found is None:
         return None
     tilt, chord, inliers = found
+    slope = np.zeros(2)
+    ratios = np.concatenate([points.off_lane_ratios()[points.candidate] for points in per_camera])
     inverse_sigmas = sigmas / _candidate_chords(per_camera, np.zeros(2)) ** 2
     inverse = _inverse_chords(per_camera, tilt)
     for _ in range(max(options.plane_rounds, 1)):
-        x, normal_matrix, residuals = _plane_step(per_camera, inverse_sigmas, tilt, inverse, inliers, options.normal_prior_sigma)
-        tilt = tilt + x[1:]
+        x, normal_matrix, residuals = _plane_step(per_camera, inverse_sigmas, tilt, slope, inverse, ratios, inliers, options)
+        tilt, slope = tilt + x[1:3], slope + x[3:]
         inverse = _inverse_chords(per_camera, tilt)  # once per round: the inlier selection and the next step share it
-        inliers = _plane_inliers(inverse, inverse_sigmas, sigmas, float(x[0]), options)
+        inliers = _plane_inliers(_modelled_inverse(inverse, ratios, slope), inverse_sigmas, sigmas, float(x[0]), options)
         if np.count_nonzero(inliers) < options.min_points:
             return None
-    x, normal_matrix, residuals = _plane_step(per_camera, inverse_sigmas, tilt, inverse, inliers, options.normal_prior_sigma)
-    tilt, chord = tilt + x[1:], 1.0 / float(x[0])
+    x, normal_matrix, residuals = _plane_step(per_camera, inverse_sigmas, tilt, slope, inverse, ratios, inliers, options)
+    tilt, slope, chord = tilt + x[1:3], slope + x[3:], 1.0 / float(x[0])
     used = int(np.count_nonzero(inliers))
     birge = max(1.0, float(np.sqrt(np.sum(residuals**2) / max(used - 3, 1))))
     covariance = np.linalg.inv(normal_matrix) * birge**2
-    conditional = birge**2 / normal_matrix[0, 0]  # the inverse chord's variance if the tilt were known
+    conditional = birge**2 / normal_matrix[0, 0]  # the inverse chord's variance if the plane's shape were known
     to_chord = chord**4  # d rho / d q = -rho²
-    return PlaneFit(tilt, chord, float(covariance[0, 0] * to_chord), float(max(covariance[0, 0] - conditional, 0.0) * to_chord), birge, inliers)
+    return PlaneFit(tilt, chord, float(covariance[0, 0] * to_chord), float(max(covariance[0, 0] - conditional, 0.0) * to_chord), birge, inliers, slope)
 
 
 def _formal_sigma(sigmas: np.ndarray) -> float:
@@ -694,6 +743,7 @@ def ground_plane_chord(
     # the path's curvature: the yaw change (its sign flipped when reversing) over the whole view's
     # road chord (the given motion's has no scale)
     curvature = direction * yaw_of(T_i_j) / road_chord
+    per_camera = [_with_off_lane(points, curvature, options, driven, direction) for points in per_camera]
     lane = _within_lane(per_camera, road_chord, curvature, options, driven=driven, direction=direction)
     if lane is not None:
         return _chord_of_points(lane, heights, options, yaw_sigma)
@@ -711,6 +761,16 @@ def ground_plane_chord(
     return _off_lane_sigma(whole, per_camera, curvature, options, driven, direction)
 
 
+def _with_off_lane(points: PointChords, curvature: float, options: GroundScaleOptions, driven: np.ndarray | None, direction: float) -> PointChords:
+    """``points`` with ``off_lane``: each ray's signed distance beyond the own lane's edge where it
+    meets the calibrated road plane (:func:`path_distance`; 0 inside the lane)."""
+    if points.rays is None:
+        return points
+    _, lateral, _ = path_distance(points.rays.f, points.rays.offset, points.rays.height, curvature, driven, direction)
+    beyond = np.sign(lateral) * np.maximum(np.abs(lateral) - options.lane_half_width_m, 0.0)
+    return dataclasses.replace(points, off_lane=beyond)
+
+
 def _off_lane_sigma(measured: GroundChord, per_camera: Sequence[PointChords], curvature: float, options: GroundScaleOptions,
                     driven: np.ndarray | None, direction: float) -> GroundChord:
     """``measured`` (from road points beyond the own lane too) with its sigma widened by the road's
@@ -725,8 +785,8 @@ def _off_lane_sigma(measured: GroundChord, per_camera: Sequence[PointChords], cu
     for points, mask in zip(per_camera, measured.inliers):
         if points.rays is None or not np.any(mask):
             continue
-        _, distance, _ = path_distance(points.rays.f[mask], points.rays.offset, points.rays.height, curvature, driven, direction)
-        beyond.append(np.maximum(distance - options.lane_half_width_m, 0.0) / points.rays.height)
+        _, lateral, _ = path_distance(points.rays.f[mask], points.rays.offset, points.rays.height, curvature, driven, direction)
+        beyond.append(np.maximum(np.abs(lateral) - options.lane_half_width_m, 0.0) / points.rays.height)
     if not beyond:
         return measured
     relative = options.off_lane_slope_sigma * float(np.mean(np.concatenate(beyond)))

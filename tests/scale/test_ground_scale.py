@@ -376,8 +376,8 @@ def test_a_sparsely_textured_own_lane_still_gives_the_chord() -> None:
         strict = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, dataclasses.replace(LANE, min_lane_points=15))
         whole = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, OPTIONS)
         assert lane.ok and strict.ok and whole.ok
-        assert 8 <= lane.inlier_count <= 12 and lane.inlier_count < strict.inlier_count <= whole.inlier_count
-        assert whole.inlier_count > 150
+        assert 8 <= lane.inlier_count <= 12 and lane.inlier_count < strict.inlier_count
+        assert whole.inlier_count > 150 and strict.inlier_count > 150
         assert lane.sigma > 1.5 * whole.sigma
         normalized.append((lane.chord - 1.6) / lane.sigma)
     assert np.max(np.abs(normalized)) < 3.0 and np.median(np.abs(normalized)) < 1.0
@@ -440,29 +440,34 @@ def test_own_lane_behind_the_axle_is_the_road_driven_not_the_turns_arc() -> None
     assert in_own_lane(rays, offset, height, curvature, LANE, driven).all()
 
 
-def test_a_chord_from_beyond_the_lane_carries_the_roads_shape_in_its_sigma() -> None:
+def test_a_chord_from_beyond_the_lane_carries_the_roads_shape() -> None:
     """With 3 points in the own lane and 200 on the far side of a 3 % crown the whole view's chord
-    is a few % off (median: calibrated plane -3 %, fitted plane +5 %, the plane tilting to the far side), the
-    same way for every point, so their number cannot shrink it: ``off_lane_slope_sigma`` (5 % of
-    cross-slope change at the lane's edge) puts it in the sigma, which then covers the error (|z|
-    at most 1.9 over seeds); without it the error reaches 4.8 sigma. Checked over seeds."""
+    is a few % off, the same way for every point, so their number cannot shrink it. The fitted plane
+    (default) estimates the road's fall beyond the lane's edge on either side (a cross-slope change
+    of ``off_lane_slope_sigma``, 5 %, a priori): median error 2.9 % instead of 4.7 %, |z| at most 3.1
+    instead of 4.8. With the calibrated plane that sigma widens the chord's instead: |z| at most 1.9,
+    4.8 without it. Checked over seeds."""
+    results = {}
     for fit_plane in (False, True):
-        normalized, unexplained, errors = [], [], []
-        for seed in range(10):
-            rng = np.random.default_rng(90 + seed)
-            road = _crowned_road(rng, 1200, crown=0.03)
-            points = np.concatenate([road[np.abs(road[:, 1]) < 1.5][:3], road[road[:, 1] > 2.5][:200], _facade_points(rng, 60)])
-            bearings = _observe(FRONT, points, _motion(0.0, 1.6), rng)
-            options = dataclasses.replace(LANE, fit_plane=fit_plane)
-            honest = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, options)
-            bare = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, dataclasses.replace(options, off_lane_slope_sigma=1e-9))
-            assert honest.ok and bare.ok and honest.chord == bare.chord
-            errors.append(honest.chord / 1.6 - 1.0)
-            normalized.append((honest.chord - 1.6) / honest.sigma)
-            unexplained.append((bare.chord - 1.6) / bare.sigma)
-        assert np.median(np.abs(errors)) > 0.02
-        assert np.max(np.abs(normalized)) < 2.5
-        assert np.max(np.abs(unexplained)) > 3.5
+        for slope_sigma in (0.05, 1e-9):
+            errors, normalized = [], []
+            for seed in range(10):
+                rng = np.random.default_rng(90 + seed)
+                road = _crowned_road(rng, 1200, crown=0.03)
+                points = np.concatenate([road[np.abs(road[:, 1]) < 1.5][:3], road[road[:, 1] > 2.5][:200], _facade_points(rng, 60)])
+                bearings = _observe(FRONT, points, _motion(0.0, 1.6), rng)
+                options = dataclasses.replace(LANE, fit_plane=fit_plane, off_lane_slope_sigma=slope_sigma)
+                result = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, options)
+                assert result.ok
+                errors.append(result.chord / 1.6 - 1.0)
+                normalized.append((result.chord - 1.6) / result.sigma)
+            results[fit_plane, slope_sigma > 1e-6] = (np.array(errors), np.array(normalized))
+    (calibrated, calibrated_z), (bare, bare_z) = results[False, True], results[False, False]
+    np.testing.assert_array_equal(calibrated, bare)  # the calibrated plane: the sigma only
+    assert np.median(np.abs(calibrated)) > 0.02 and np.max(np.abs(calibrated_z)) < 2.5 and np.max(np.abs(bare_z)) > 3.5
+    (fitted, fitted_z), (unmodelled, unmodelled_z) = results[True, True], results[True, False]
+    assert np.median(np.abs(fitted)) < 0.7 * np.median(np.abs(unmodelled))
+    assert np.max(np.abs(fitted_z)) < 3.5 and np.max(np.abs(unmodelled_z)) > 4.0
 
 
 def test_own_lane_without_enough_points_widens_to_the_neighbouring_lanes_where_the_whole_view_disagrees() -> None:
@@ -478,8 +483,9 @@ def test_own_lane_without_enough_points_widens_to_the_neighbouring_lanes_where_t
     bearings = _observe(FRONT, nothing_near, _motion(0.0, 1.6), rng)
     lane = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, LANE)
     whole = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, OPTIONS)
-    assert lane.ok and whole.ok and lane.chord == whole.chord
-    assert abs(lane.chord - 1.6) < 3.0 * lane.sigma
+    # the whole view's points, with the road's fall beyond the lane fitted (its uncertainty in the sigma)
+    assert lane.ok and whole.ok and abs(lane.inlier_count - whole.inlier_count) <= 2
+    assert whole.sigma < lane.sigma and abs(lane.chord - 1.6) < 3.0 * lane.sigma
 
     band_errors, whole_errors = [], []
     for seed in range(6):
