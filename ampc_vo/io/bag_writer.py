@@ -7,11 +7,17 @@ What the recording holds: every camera's images on its rig ``topic`` (``sensor_m
 (``geometry_msgs/TwistStamped`` ``twist.linear.x``, or ``nav_msgs/Odometry``) and the ground-truth
 tractor pose (``nav_msgs/Odometry`` or ``geometry_msgs/PoseStamped``). A message's log time is its
 stamp plus an optional per-topic transport delay (delays that differ between topics put the
-messages out of stamp order in the log, as real recorders do). Used by the tests to build logs from
-rendered sequences and by users to export a dataset folder.
+messages out of stamp order in the log, as real recorders do). A log's time cannot be negative, but
+a dataset's capture times can (a camera that fires before the first frame time, as the realistic
+routes' unsynchronised cameras do): every stamp is written plus ``time_origin`` seconds, by default
+the whole seconds that make the earliest stamp non-negative (:func:`recording_time_origin`; 0 for
+most datasets). Used by the tests to build logs from rendered sequences and by users to export a
+dataset folder.
 """
 from __future__ import annotations
 
+import logging
+import math
 import shutil
 import tempfile
 from dataclasses import dataclass, field
@@ -28,12 +34,15 @@ FORMATS = ("ros1", "ros2-sqlite3", "ros2-mcap", "mcap")
 SPEED_TYPES = {"twist": "geometry_msgs/msg/TwistStamped", "odometry": "nav_msgs/msg/Odometry"}
 POSE_TYPES = {"odometry": "nav_msgs/msg/Odometry", "pose": "geometry_msgs/msg/PoseStamped"}
 
+logger = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True)
 class RecordingContent:
     """What goes into the recording besides the images (module docstring). ``compressed``: the
     cameras written as ``CompressedImage`` (``image_format`` ``jpeg`` or ``png``); ``delays``:
-    topic -> transport delay (s) added to the log time; ``drop``: camera -> frames left out."""
+    topic -> transport delay (s) added to the log time; ``drop``: camera -> frames left out;
+    ``time_origin``: seconds added to every stamp (``None``: :func:`recording_time_origin`)."""
 
     compressed: tuple[str, ...] = ()
     image_format: str = "jpeg"
@@ -45,6 +54,22 @@ class RecordingContent:
     pose_type: str = "odometry"
     delays: dict[str, float] = field(default_factory=dict)
     drop: dict[str, tuple[int, ...]] = field(default_factory=dict)
+    time_origin: float | None = None
+
+
+def recording_time_origin(dataset: object, content: RecordingContent = RecordingContent()) -> float:
+    """Seconds added to every stamp of ``dataset``'s recording (module docstring): ``content.time_origin``
+    when given, else the whole seconds that lift the earliest capture, wheel-speed or ground-truth
+    time to zero or above (0 when none is negative). Outputs of the recording are on this clock:
+    subtract it to compare them with the dataset's own times."""
+    if content.time_origin is not None:
+        return float(content.time_origin)
+    earliest = min([float(np.min(dataset.timestamps))] + [float(np.min(times)) for times in dataset.camera_timestamps.values()])
+    if content.wheel_speed is not None and len(content.wheel_speed[0]):
+        earliest = min(earliest, float(np.min(content.wheel_speed[0])))
+    if content.pose_topic is not None and dataset.groundtruth is not None:
+        earliest = min(earliest, float(np.min(dataset.groundtruth.timestamps)))
+    return float(math.ceil(-earliest)) if earliest < 0.0 else 0.0
 
 
 def _stamp(typestore, seconds: float, ros1: bool):
@@ -143,6 +168,9 @@ def write_recording(dataset: object, out: str | Path, format: str = "ros2-mcap",
         staging = Path(tempfile.mkdtemp(prefix="ampc_vo_mcap_"))
         target = staging / "bag"
     out.parent.mkdir(parents=True, exist_ok=True)
+    origin = recording_time_origin(dataset, content)
+    if origin:
+        logger.info("%s: stamps written %+.0f s from the dataset's times (a log's time cannot be negative)", out, origin)
     sink = _Sink(target, "ros2-mcap" if format == "mcap" else format)
     events: list[tuple[float, int, str, str, object]] = []  # (log time, order, topic, msgtype, message)
     try:
@@ -150,7 +178,7 @@ def write_recording(dataset: object, out: str | Path, format: str = "ros2-mcap",
             for camera in rig.cameras:
                 if frame in content.drop.get(camera.name, ()):
                     continue
-                stamp = dataset.camera_timestamp(frame, camera.name)
+                stamp = dataset.camera_timestamp(frame, camera.name) + origin
                 compressed = camera.name in content.compressed
                 msgtype = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
                 # images are loaded and encoded when written (one in memory at a time)
@@ -158,7 +186,7 @@ def write_recording(dataset: object, out: str | Path, format: str = "ros2-mcap",
                 events.append((stamp + content.delays.get(camera.topic, 0.0), len(events), camera.topic, msgtype, message))
         if content.wheel_speed is not None:
             msgtype = SPEED_TYPES[content.wheel_speed_type]
-            for stamp, speed in zip(*content.wheel_speed):
+            for stamp, speed in zip(content.wheel_speed[0] + origin, content.wheel_speed[1]):
                 if content.wheel_speed_type == "twist":
                     twist = sink.typestore.types["geometry_msgs/msg/Twist"](linear=_vector3(sink.typestore, speed), angular=_vector3(sink.typestore, 0.0))
                     message = sink.typestore.types[msgtype](header=_header(sink.typestore, stamp, "tractor", sink.ros1), twist=twist)
@@ -170,7 +198,7 @@ def write_recording(dataset: object, out: str | Path, format: str = "ros2-mcap",
             if truth is None:
                 raise DatasetError(f"{dataset.root}: no groundtruth.csv to write a pose topic from")
             msgtype = POSE_TYPES[content.pose_type]
-            for stamp, T in zip(truth.timestamps, truth.T_world_tractor):
+            for stamp, T in zip(truth.timestamps + origin, truth.T_world_tractor):
                 if content.pose_type == "odometry":
                     message = _odometry(sink.typestore, stamp, sink.ros1, T=T)
                 else:

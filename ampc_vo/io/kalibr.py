@@ -17,10 +17,15 @@ The layout (YAML; DESIGN section 1 frames)::
     hitch: [x, y, z]                 # the hitch centre in the same vehicle frame (default 0 0 0:
                                      # the vehicle frame is the tractor frame)
     hitch_height: 1.2                # king-pin above the road (m)
-    bodies: {tractor: {axle_x: 0.5}, trailer: {axle_x: -8.0}}    # in the body frames
+    bodies: {tractor: {axle_x: 0.5}, trailer: {axle_x: -8.0}}    # in the body frames (as in rig.yaml,
+                                     # with the trailer's box where mirror cameras see it)
     cameras:
       cam0: {name: front, body: tractor, topic: /front/image}    # topic default: Kalibr's rostopic
-      cam1: {name: rear, body: trailer}
+      cam1: {name: rear, body: trailer, readout_time: 0.03}      # rolling shutter (s, default 0)
+
+A rolling-shutter camera's ``readout_time`` (first to last row, seconds) is not in the camchain:
+Kalibr's rolling-shutter calibration (``pinhole-radtan-rs``) prints a line delay, and
+``readout_time = line_delay * (height - 1)``; a sensor's data sheet gives it too.
 
 The vehicle frame is x forward, y left, z up with its axes those of the tractor (any origin: the
 hitch position moves it onto the hitch). The whole rig is calibrated in one Kalibr run with the
@@ -39,10 +44,10 @@ import yaml
 
 from ampc_vo.errors import ConfigError
 from ampc_vo.geometry import invert_pose, make_pose, quat_xyzw_from_rotation, rotation_from_quat_xyzw
-from ampc_vo.rig import Rig, rig_from_dict
+from ampc_vo.rig import Rig, rig_from_dict, rig_to_dict
 
 LAYOUT_KEYS = ("reference", "T_vehicle_reference", "hitch", "hitch_height", "bodies", "cameras")
-LAYOUT_CAMERA_KEYS = ("name", "body", "topic")
+LAYOUT_CAMERA_KEYS = ("name", "body", "topic", "readout_time")
 DISTORTION_MODELS = {"radtan": ("pinhole", 4), "equidistant": ("fisheye", 4)}
 
 
@@ -177,7 +182,7 @@ def rig_from_kalibr(camchain: Any, layout: Any, camchain_source: str = "camchain
     for (name, spec), T_cam0_camera in zip(cameras, T_cam0_cam):
         entry = specs[name]
         if not isinstance(entry, dict) or "name" not in entry or "body" not in entry or set(entry) - set(LAYOUT_CAMERA_KEYS):
-            raise ConfigError(f"{layout_source}: cameras.{name}: expected {{name, body[, topic]}}, got {entry!r}")
+            raise ConfigError(f"{layout_source}: cameras.{name}: expected {{name, body[, topic, readout_time]}}, got {entry!r}")
         T_body_camera = T_tractor_cam0 @ T_cam0_camera  # trailer cameras too: calibrated at hitch angle 0
         topic = entry.get("topic", spec.get("rostopic"))
         camera = {"name": str(entry["name"]), "body": entry["body"], **_intrinsics(name, spec, camchain_source),
@@ -185,6 +190,8 @@ def rig_from_kalibr(camchain: Any, layout: Any, camchain_source: str = "camchain
                                     "quaternion": [float(v) for v in quat_xyzw_from_rotation(T_body_camera[:3, :3])]}}
         if topic is not None:
             camera["topic"] = str(topic)
+        if "readout_time" in entry:
+            camera["readout_time"] = entry["readout_time"]  # checked by rig_from_dict
         rig_cameras.append(camera)
     raw = {"hitch_height": layout.get("hitch_height", 0.0), "bodies": layout["bodies"], "cameras": rig_cameras}
     return rig_from_dict(raw, source=f"{layout_source} + {camchain_source}")
@@ -224,11 +231,13 @@ def kalibr_from_rig(rig: Rig, reference: str | None = None) -> tuple[dict, dict]
             spec["T_cn_cnm1"] = (invert_pose(camera.T_body_camera) @ previous.T_body_camera).tolist()
         camchain[key] = spec
         layout_cameras[key] = {"name": camera.name, "body": camera.body}
+        if camera.readout_time:
+            layout_cameras[key]["readout_time"] = float(camera.readout_time)
         previous = camera
     T_body_reference = rig.camera(reference).T_body_camera
     layout = {"reference": f"cam{rig.camera_names.index(reference)}",
               "T_vehicle_reference": {"translation": [float(v) for v in T_body_reference[:3, 3]],
                                       "quaternion": [float(v) for v in quat_xyzw_from_rotation(T_body_reference[:3, :3])]},
               "hitch": [0.0, 0.0, 0.0], "hitch_height": float(rig.hitch_height),
-              "bodies": {name: {"axle_x": float(body.axle_x)} for name, body in rig.bodies.items()}, "cameras": layout_cameras}
+              "bodies": rig_to_dict(rig)["bodies"], "cameras": layout_cameras}
     return camchain, layout

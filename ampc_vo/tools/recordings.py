@@ -77,7 +77,7 @@ def compare_log_with_folder(dataset: str | Path, work: str | Path, formats: tupl
     """Run ``dataset`` as a folder and as recordings in ``formats`` (module docstring; the rig of
     the recordings goes through a Kalibr camchain and the layout) and evaluate each."""
     from ampc_vo.frontend.sources import open_sequence
-    from ampc_vo.io.bag_writer import RecordingContent, write_recording
+    from ampc_vo.io.bag_writer import RecordingContent, recording_time_origin, write_recording
     from ampc_vo.io.folder import read_dataset
     from ampc_vo.io.kalibr import load_rig_from_kalibr
     from ampc_vo.io.groundtruth import groundtruth_of
@@ -99,5 +99,6 @@ def compare_log_with_folder(dataset: str | Path, work: str | Path, formats: tupl
         content = RecordingContent(compressed=tuple(folder.camera_names) if compressed else ())
         write_recording(folder, log, format, content)
         run_sequence(open_sequence(log, config, rig=rig), config, work / f"out-{format}", progress=False)
-        logs[format] = evaluate_output(work / f"out-{format}", truth).metrics
+        on_log_clock = dataclasses.replace(truth, timestamps=truth.timestamps + recording_time_origin(folder, content))
+        logs[format] = evaluate_output(work / f"out-{format}", on_log_clock).metrics
     return LogComparison(folder_metrics, logs)

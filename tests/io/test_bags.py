@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from ampc_vo.errors import DatasetError
-from ampc_vo.io.bag_writer import RecordingContent, write_recording
+from ampc_vo.io.bag_writer import RecordingContent, recording_time_origin, write_recording
 from ampc_vo.io.bags import decode_image_message, group_frames, header_stamp, is_log, read_recording
 from ampc_vo.io.folder import image_relative_path, read_dataset, write_dataset
 from ampc_vo.rig import replace_camera
@@ -234,3 +234,22 @@ def test_a_recordings_frames_are_read_in_one_thread_and_decoded_in_parallel(fold
                 else:
                     np.testing.assert_array_equal(images[camera], folder.load_image(frame, camera))
     assert len(opened) == 1 and opened[0].startswith("frame-reader")  # the log is opened and read by the reading thread only
+
+
+def test_a_camera_firing_before_time_zero_is_written_on_a_shifted_clock(tmp_path, default_rig):
+    # a realistic route's camera captures 1 ms before the first frame time: a log's time cannot be
+    # negative, so every stamp moves by a whole second and reads back with the same spacing
+    rig = dataclasses.replace(default_rig, cameras=tuple(replace_camera(c, topic=f"/cam/{c.name}/image") for c in default_rig.cameras))
+    timestamps = 0.1 * np.arange(3)
+    offsets = {"front": -0.001, "left": 0.02}
+    write_dataset(tmp_path / "folder", rig, timestamps, with_images=True, camera_timestamps={name: timestamps + offset for name, offset in offsets.items()})
+    for frame in range(3):
+        for camera in rig.camera_names:
+            path = tmp_path / "folder" / image_relative_path(camera, frame)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(path), np.full((480, 640), 10 * frame, np.uint8))
+    folder = read_dataset(tmp_path / "folder")
+    assert recording_time_origin(folder) == 1.0 and recording_time_origin(folder, RecordingContent(time_origin=T0)) == T0
+    recording = read_recording(_log(folder, tmp_path, "mcap"), folder.rig)
+    np.testing.assert_allclose(recording.camera_timestamps["front"], 1.0 + timestamps - 0.001, atol=1e-9)
+    np.testing.assert_allclose(recording.camera_timestamps["left"], 1.0 + timestamps + 0.02, atol=1e-9)

@@ -120,14 +120,16 @@ def test_a_reference_other_than_cam0_gives_the_same_rig():
         np.testing.assert_allclose(a.T_body_camera, b.T_body_camera, atol=1e-9)
 
 
-@pytest.mark.parametrize("rig_file", ["default.yaml", "fisheye.yaml"])
+@pytest.mark.parametrize("rig_file", ["default.yaml", "fisheye.yaml", "semitrailer.yaml"])
 def test_a_rig_written_as_a_camchain_comes_back(rig_file):
+    # the semitrailer: rolling-shutter cameras (the layout's readout_time) and the trailer's box
     rig = load_rig(ROOT / "configs" / "rigs" / rig_file)
     camchain, layout = kalibr_from_rig(rig, reference=rig.cameras[2].name)
     back = rig_from_kalibr(yaml.safe_load(yaml.safe_dump(camchain)), yaml.safe_load(yaml.safe_dump(layout)))
     for a, b in zip(rig.cameras, back.cameras):
         np.testing.assert_allclose(a.T_body_camera, b.T_body_camera, atol=1e-9)
-        assert (a.name, a.body, a.model, a.fx, a.cx) == (b.name, b.body, b.model, b.fx, b.cx)
+        assert (a.name, a.body, a.model, a.fx, a.cx, a.readout_time) == (b.name, b.body, b.model, b.fx, b.cx, b.readout_time)
+    assert back.bodies == rig.bodies and back.hitch_height == rig.hitch_height
 
 
 @pytest.mark.parametrize("change, message", [
@@ -138,6 +140,7 @@ def test_a_rig_written_as_a_camchain_comes_back(rig_file):
     (lambda c, l: l["cameras"].pop("cam2"), "expected one entry per camchain camera"),
     (lambda c, l: l.update(reference="cam7"), "reference: 'cam7' is not a camchain camera"),
     (lambda c, l: l["cameras"]["cam2"].update(body="dolly"), "unknown body 'dolly'"),
+    (lambda c, l: l["cameras"]["cam1"].update(readout_time=2.0), "readout_time: rolling-shutter readout must be in"),
 ])
 def test_bad_calibrations_are_clear_errors(change, message):
     import copy
