@@ -64,12 +64,18 @@ def recording_time_origin(dataset: object, content: RecordingContent = Recording
     subtract it to compare them with the dataset's own times."""
     if content.time_origin is not None:
         return float(content.time_origin)
+    earliest = _earliest_time(dataset, content)
+    return float(math.ceil(-earliest)) if earliest < 0.0 else 0.0
+
+
+def _earliest_time(dataset: object, content: RecordingContent) -> float:
+    """The earliest capture, wheel-speed or ground-truth time (s) the recording would hold, before its origin."""
     earliest = min([float(np.min(dataset.timestamps))] + [float(np.min(times)) for times in dataset.camera_timestamps.values()])
     if content.wheel_speed is not None and len(content.wheel_speed[0]):
         earliest = min(earliest, float(np.min(content.wheel_speed[0])))
     if content.pose_topic is not None and dataset.groundtruth is not None:
         earliest = min(earliest, float(np.min(dataset.groundtruth.timestamps)))
-    return float(math.ceil(-earliest)) if earliest < 0.0 else 0.0
+    return earliest
 
 
 def _stamp(typestore, seconds: float, ros1: bool):
@@ -162,15 +168,18 @@ def write_recording(dataset: object, out: str | Path, format: str = "ros2-mcap",
     missing = [camera.name for camera in rig.cameras if not camera.topic]
     if missing:
         raise DatasetError(f"{dataset.root}: rig cameras {missing} have no topic to write their images on")
+    origin = recording_time_origin(dataset, content)
+    if _earliest_time(dataset, content) + origin < 0.0:
+        raise DatasetError(f"{out}: time origin {origin} s leaves stamps before 0 s (earliest {_earliest_time(dataset, content):.6f} s in "
+                           f"{dataset.root}); a log's time cannot be negative")
+    if origin:
+        logger.info("%s: stamps written %+.0f s from the dataset's times (a log's time cannot be negative)", out, origin)
     target = out
     staging = None
     if format == "mcap":  # a bare .mcap file: the storage file of a ROS 2 MCAP bag
         staging = Path(tempfile.mkdtemp(prefix="ampc_vo_mcap_"))
         target = staging / "bag"
     out.parent.mkdir(parents=True, exist_ok=True)
-    origin = recording_time_origin(dataset, content)
-    if origin:
-        logger.info("%s: stamps written %+.0f s from the dataset's times (a log's time cannot be negative)", out, origin)
     sink = _Sink(target, "ros2-mcap" if format == "mcap" else format)
     events: list[tuple[float, int, str, str, object]] = []  # (log time, order, topic, msgtype, message)
     try:

@@ -253,3 +253,6 @@ def test_a_camera_firing_before_time_zero_is_written_on_a_shifted_clock(tmp_path
     recording = read_recording(_log(folder, tmp_path, "mcap"), folder.rig)
     np.testing.assert_allclose(recording.camera_timestamps["front"], 1.0 + timestamps - 0.001, atol=1e-9)
     np.testing.assert_allclose(recording.camera_timestamps["left"], 1.0 + timestamps + 0.02, atol=1e-9)
+    with pytest.raises(DatasetError, match="time origin 0.0 s leaves stamps before 0 s"):
+        write_recording(folder, tmp_path / "zero.mcap", "mcap", RecordingContent(time_origin=0.0))
+    assert not (tmp_path / "zero.mcap").exists()
