@@ -444,9 +444,9 @@ def test_a_chord_from_beyond_the_lane_carries_the_roads_shape() -> None:
     """With 3 points in the own lane and 200 on the far side of a 3 % crown the whole view's chord
     is a few % off, the same way for every point, so their number cannot shrink it. The fitted plane
     (default) estimates the road's fall beyond the lane's edge on either side (a cross-slope change
-    of ``off_lane_slope_sigma``, 5 %, a priori): median error 2.9 % instead of 4.7 %, |z| at most 3.1
-    instead of 4.8. With the calibrated plane that sigma widens the chord's instead: |z| at most 1.9,
-    4.8 without it. Checked over seeds."""
+    of ``off_lane_slope_sigma``, 5 %, a priori) and widens the chord's sigma by it: median error 2.9 %
+    instead of 4.7 %, |z| at most 0.9 instead of 4.8. With the calibrated plane the sigma is widened
+    only: |z| at most 1.9, 4.8 without it. Checked over seeds."""
     results = {}
     for fit_plane in (False, True):
         for slope_sigma in (0.05, 1e-9):
@@ -467,7 +467,7 @@ def test_a_chord_from_beyond_the_lane_carries_the_roads_shape() -> None:
     assert np.median(np.abs(calibrated)) > 0.02 and np.max(np.abs(calibrated_z)) < 2.5 and np.max(np.abs(bare_z)) > 3.5
     (fitted, fitted_z), (unmodelled, unmodelled_z) = results[True, True], results[True, False]
     assert np.median(np.abs(fitted)) < 0.7 * np.median(np.abs(unmodelled))
-    assert np.max(np.abs(fitted_z)) < 3.5 and np.max(np.abs(unmodelled_z)) > 4.0
+    assert np.max(np.abs(fitted_z)) < 2.0 and np.max(np.abs(unmodelled_z)) > 4.0
 
 
 def test_own_lane_without_enough_points_widens_to_the_neighbouring_lanes_where_the_whole_view_disagrees() -> None:
