@@ -231,6 +231,11 @@ class SmootherConfig:
     nonholonomic_slip_deg: float = 0.2           # tractor axle: slip angle the arc model misses when not cornering
     trailer_nonholonomic_slip_deg: float = 0.2   # trailer axle group: the same
     nonholonomic_slip_deg_per_mps2: float = 0.7  # both: tyre slip angle per m/s^2 of lateral acceleration (cornering coefficient ~0.15/deg)
+    # the trailer's crab angle (steady drift down a cross-slope, an axle group off the centre line, a
+    # dog-tracking trailer), a variable of the trailer's non-holonomic factor with this prior (None: not
+    # estimated, zero; opt-in: on the realistic suite it cost more than it gave, DESIGN 3)
+    trailer_crab_sigma_deg: float | None = None
+    trailer_crab_random_walk_deg_per_sqrt_100m: float = 0.1  # it changes with the road's cross-slope and the load
     planar_rotation_sigma_deg: float = 0.2
     planar_height_sigma_m: float = 0.02
     # suspension: body roll and pitch per m/s^2 of lateral and longitudinal acceleration (quasi-static;
@@ -276,6 +281,9 @@ class SmootherConfig:
             _positive(getattr(self, name), where + name)
         if self.lm_max_iterations is not None:
             _at_least(self.lm_max_iterations, 1, where + "lm_max_iterations")
+        if self.trailer_crab_sigma_deg is not None:
+            _positive(self.trailer_crab_sigma_deg, where + "trailer_crab_sigma_deg")
+            _positive(self.trailer_crab_random_walk_deg_per_sqrt_100m, where + "trailer_crab_random_walk_deg_per_sqrt_100m")
         if not self.hitch_limit_deg < 180.0:
             raise _error(where + "hitch_limit_deg", f"must be below 180, got {self.hitch_limit_deg}")
         _at_least(self.max_window_tracks_per_camera, 2, where + "max_window_tracks_per_camera")

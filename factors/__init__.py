@@ -33,7 +33,7 @@ from factors.epipolar import (
 )
 from factors.joint_loop import JointLoopFactor, joint_loop_error
 from factors.noise import robust_noise
-from factors.nonholonomic import NonHolonomicFactor, nonholonomic_error
+from factors.nonholonomic import NonHolonomicFactor, crabbed_nonholonomic_error, nonholonomic_error
 from factors.planar import PlanarMotionFactor, planar_motion_error
 from factors.stacked import StackedFactor, Term
 from factors.wheel_speed import WheelSpeedFactor, chord_error, scaled_chord_error
@@ -57,6 +57,7 @@ __all__ = [
     "epipolar_error",
     "joint_loop_error",
     "nonholonomic_error",
+    "crabbed_nonholonomic_error",
     "planar_motion_error",
     "robust_noise",
     "scaled_chord_error",

@@ -16,6 +16,11 @@ pitch, roll) order, which equals the planar yaw change when ``R = Rz(phi)`` and 
 small roll and pitch; the Jacobian differentiates exactly this definition (``R Exp(omega)``).
 Valid for ``|phi| < pi`` (the residual flips sign when phi wraps), far beyond keyframe motion.
 Tyre slip breaks the model by up to ~1.5 degrees in hard cornering: use a robust noise model.
+
+A trailer that crabs (tyres drifting down a cross-slope, an axle group set off the centre line) moves
+at a steady angle ``beta`` to its own x axis: :func:`crabbed_nonholonomic_error` takes it as a
+variable, ``e = n(phi/2 + beta) . d`` (the chord then points at ``phi/2 + beta``), so the trailer's
+cameras measure the crab instead of the model asserting zero on every pair alike.
 """
 from __future__ import annotations
 
@@ -55,19 +60,42 @@ def nonholonomic_error(
     """Residual (1,) of the module docstring (metres) and, if ``jacobians``, two (1, 6) Jacobians
     w.r.t. ``T_world_i`` and ``T_world_j``: ``d e = n . d(d) - (u . d) / 2 d phi`` (``d n(a) / d a
     = -u(a)``, ``u(a) = (cos a, sin a, 0)``)."""
+    return _arc_error(T_world_i, T_world_j, axle_x, 0.0, jacobians)[:2]
+
+
+def crabbed_nonholonomic_error(
+    T_world_i: gtsam.Pose3,
+    T_world_j: gtsam.Pose3,
+    crab: float,
+    axle_x: float,
+    jacobians: bool = False,
+) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Residual (1,) ``n(phi/2 + beta) . d`` (metres; module docstring, a crabbing trailer) with the
+    crab angle ``beta = crab`` (radians) and, if ``jacobians``, the (1, 6), (1, 6) and (1, 1)
+    Jacobians by the two poses and the crab angle (``d e / d beta = -u(phi/2 + beta) . d``)."""
+    residual, by_poses, by_crab = _arc_error(T_world_i, T_world_j, axle_x, float(np.ravel(crab)[0]), jacobians)
+    if not jacobians:
+        return residual, None
+    return residual, by_poses + [by_crab]
+
+
+def _arc_error(T_world_i: gtsam.Pose3, T_world_j: gtsam.Pose3, axle_x: float, crab: float,
+               jacobians: bool) -> tuple[np.ndarray, list[np.ndarray] | None, np.ndarray | None]:
+    """``n(phi/2 + crab) . d`` and, if ``jacobians``, its Jacobians by the poses and by ``crab``."""
     T_i_j, between_i = relative_motion(T_world_i, T_world_j)
     rows, (d_x, d_y, _) = axle_displacement(T_i_j, axle_x)
     yaw_change, yaw_by_omega = yaw_and_jacobian(rows)
-    sine, cosine = math.sin(0.5 * yaw_change), math.cos(0.5 * yaw_change)
-    residual = np.array([cosine * d_y - sine * d_x])  # n(phi/2) . d
+    angle = 0.5 * yaw_change + crab
+    sine, cosine = math.sin(angle), math.cos(angle)
+    residual = np.array([cosine * d_y - sine * d_x])  # n(phi/2 + crab) . d
     if not jacobians:
-        return residual, None
+        return residual, None, None
     gradient = displacement_gradient((-sine, cosine, 0.0), rows, axle_x)
-    along = 0.5 * (cosine * d_x + sine * d_y)  # (u(phi/2) . d) / 2
-    gradient[1] -= along * yaw_by_omega[1]
-    gradient[2] -= along * yaw_by_omega[2]
+    along = cosine * d_x + sine * d_y  # u(phi/2 + crab) . d
+    gradient[1] -= 0.5 * along * yaw_by_omega[1]
+    gradient[2] -= 0.5 * along * yaw_by_omega[2]
     jacobian = np.array([gradient])
-    return residual, [jacobian @ between_i, jacobian]
+    return residual, [jacobian @ between_i, jacobian], np.array([[-along]])
 
 
 class NonHolonomicFactor(gtsam.CustomFactor):

@@ -63,7 +63,7 @@ from enum import Enum
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import A, W, X, Y
+from gtsam.symbol_shorthand import A, B, W, X, Y
 
 from ampc_vo.config import VoConfig
 from ampc_vo.epipolar import gec_sampson
@@ -75,7 +75,7 @@ from factors._custom import POSE, SCALAR
 from factors.epipolar import EpipolarBlock, body_correspondences, body_correspondences_per_row
 from factors.hitch_limit import HitchLimitFactor
 from factors.joint_loop import fifth_wheel_error
-from factors.nonholonomic import nonholonomic_error
+from factors.nonholonomic import crabbed_nonholonomic_error, nonholonomic_error
 from factors.planar import planar_motion_error, planar_sigmas
 from factors.relative_pose import between_prior
 from factors.stacked import StackedFactor, Term
@@ -439,6 +439,8 @@ class ArticulatedSmoother:
         if self.use_trailer:
             T_world_trailer = pending.values.atPose3(Y(k)).matrix()
             restart.insert(Y(k), T_world_trailer, keyframe.timestamp)
+            if self._trailer_crab:
+                self._add_crab_prior(k, float(pending.values.atDouble(B(k))), keyframe.timestamp, restart)
             if self.joint:
                 hitch = pending.values.atDouble(A(k))
                 restart.insert(A(k), float(hitch), keyframe.timestamp)
@@ -511,6 +513,8 @@ class ArticulatedSmoother:
         hitch = next_init.hitch_prev if next_init.hitch_prev is not None else 0.0
         T_world_trailer = T_world_tractor @ make_pose(rot_z(hitch), np.zeros(3))
         pending.insert(Y(first.index), T_world_trailer, first.timestamp)
+        if self._trailer_crab:
+            self._add_crab_prior(first.index, 0.0, first.timestamp, pending)
         if self.joint:
             pending.insert(A(first.index), float(hitch), first.timestamp)
             pending.graph.add(gtsam.PriorFactorDouble(A(first.index), float(hitch), gtsam.noiseModel.Isotropic.Sigma(1, np.radians(config.hitch_prior_sigma_deg))))
@@ -541,6 +545,7 @@ class ArticulatedSmoother:
         keyframe.chord = float(np.linalg.norm(init.T_tractor[:3, 3]))
         pending.insert(X(k), T_world_tractor, keyframe.timestamp)
         self._add_wheel_scale(keyframe, pending)
+        self._add_crab(keyframe, pending)
         self._log_state("tractor", init.tractor_status, keyframe)
         if self.use_trailer:
             self._log_state("trailer", init.trailer_status, keyframe)
@@ -572,7 +577,10 @@ class ArticulatedSmoother:
                     tight = _pose_sigma_vector(np.radians(config.standstill_rotation_sigma_deg), config.standstill_translation_sigma_m)
                     pending.graph.add(between_prior(*pair, _IDENTITY_POSE, tight))
                 continue
-            if body == "tractor" or self.trailer_nonholonomic:
+            if body == "trailer" and self._trailer_crab:
+                pending.terms.append(Term(pair + (B(k),), (POSE, POSE, SCALAR), partial(crabbed_nonholonomic_error, axle_x=self.rig.axle_x(body)),
+                                          np.array([self._nonholonomic_sigma(body, keyframe, pending)]), config.huber_k))
+            elif body == "tractor" or self.trailer_nonholonomic:
                 pending.terms.append(Term(pair, (POSE, POSE), partial(nonholonomic_error, axle_x=self.rig.axle_x(body)),
                                           np.array([self._nonholonomic_sigma(body, keyframe, pending)]), config.huber_k))
             linked = self._add_epipolar_factors(body, keyframe, pending, epipolar_blocks)
@@ -596,6 +604,30 @@ class ArticulatedSmoother:
                 chord, chord_sigma = init.scale_chord
                 pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(chord)), np.array([float(chord_sigma)]), config.huber_k))
         keyframe.epipolar_factor = self._add_stacked_epipolar(epipolar_blocks, pending)
+
+    @property
+    def _trailer_crab(self) -> bool:
+        """The trailer's crab angle is a variable ``B(k)`` (``smoother.trailer_crab_sigma_deg``)."""
+        return self.trailer_nonholonomic and self.config.smoother.trailer_crab_sigma_deg is not None
+
+    def _add_crab_prior(self, k: int, crab: float, timestamp: float, pending: _Pending) -> None:
+        """``B(k) = crab`` with the prior ``smoother.trailer_crab_sigma_deg`` (first keyframe, restart)."""
+        pending.insert(B(k), crab, timestamp)
+        pending.graph.add(gtsam.PriorFactorDouble(B(k), crab, gtsam.noiseModel.Isotropic.Sigma(1, np.radians(self.config.smoother.trailer_crab_sigma_deg))))
+
+    def _add_crab(self, keyframe: _Keyframe, pending: _Pending) -> None:
+        """``B(k)``, the trailer's crab angle over the pair (k-1, k) (``factors.nonholonomic``,
+        :func:`crabbed_nonholonomic_error`): a random walk from ``B(k-1)`` whose sigma grows with the
+        square root of the distance (``smoother.trailer_crab_random_walk_deg_per_sqrt_100m``: it
+        follows the road's cross-slope and the load), so a steady drift is measured by the
+        trailer's cameras over the window instead of being denied by every pair's arc alike."""
+        if not (self.use_trailer and self._trailer_crab):
+            return
+        k = keyframe.index
+        crab = self._double(B(k - 1), pending)
+        pending.insert(B(k), float(crab), keyframe.timestamp)
+        step = np.radians(self.config.smoother.trailer_crab_random_walk_deg_per_sqrt_100m) * np.sqrt(keyframe.chord / 100.0)
+        pending.graph.add(gtsam.BetweenFactorDouble(B(k - 1), B(k), 0.0, gtsam.noiseModel.Isotropic.Sigma(1, max(float(step), 1e-5))))
 
     @property
     def _wheel_scale(self) -> bool:
