@@ -233,7 +233,7 @@ class SmootherConfig:
     nonholonomic_slip_deg_per_mps2: float = 0.7  # both: tyre slip angle per m/s^2 of lateral acceleration (cornering coefficient ~0.15/deg)
     # the trailer's crab angle (steady drift down a cross-slope, an axle group off the centre line, a
     # dog-tracking trailer), a variable of the trailer's non-holonomic factor with this prior (None: not
-    # estimated, zero; opt-in: on the realistic suite it cost more than it gave, DESIGN 3)
+    # estimated, zero; opt-in: on the realistic suite it cost more than it gave, DESIGN 11)
     trailer_crab_sigma_deg: float | None = None
     trailer_crab_random_walk_deg_per_sqrt_100m: float = 0.1  # it changes with the road's cross-slope and the load
     planar_rotation_sigma_deg: float = 0.2
