@@ -2,7 +2,9 @@
 
 Variables per keyframe k: ``X(k)`` ``T_world_tractor`` (Pose3), ``Y(k)`` ``T_world_trailer``
 (Pose3), ``A(k)`` the hitch angle θ (double), in a ``gtsam.BatchFixedLagSmoother`` whose lag is
-in seconds (keys carry their keyframe's timestamp; older keys are marginalised).
+in seconds (keys carry their keyframe's timestamp; older keys are marginalised). Optional doubles:
+``W(k)`` the wheel odometry's scale (``scale.wheel_scale_sigma``), ``B(k)`` the trailer's crab
+angle (``smoother.trailer_crab_sigma_deg``), each a random walk over the keyframes.
 
 Factors added with keyframe k (``j`` < k are the keyframes still in the window):
 
