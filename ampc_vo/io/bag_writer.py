@@ -169,8 +169,9 @@ def write_recording(dataset: object, out: str | Path, format: str = "ros2-mcap",
     if missing:
         raise DatasetError(f"{dataset.root}: rig cameras {missing} have no topic to write their images on")
     origin = recording_time_origin(dataset, content)
-    if _earliest_time(dataset, content) + origin < 0.0:
-        raise DatasetError(f"{out}: time origin {origin} s leaves stamps before 0 s (earliest {_earliest_time(dataset, content):.6f} s in "
+    earliest = _earliest_time(dataset, content)
+    if earliest + origin < 0.0:
+        raise DatasetError(f"{out}: time origin {origin} s leaves stamps before 0 s (earliest {earliest:.6f} s in "
                            f"{dataset.root}); a log's time cannot be negative")
     if origin:
         logger.info("%s: stamps written %+.0f s from the dataset's times (a log's time cannot be negative)", out, origin)

@@ -760,8 +760,8 @@ def ground_plane_chord(
     if band is not None and band.ok and abs(band.chord - whole.chord) > options.lane_consistency_sigmas * np.sqrt(max(band.sigma**2 - whole.sigma**2, 0.0)):
         logger.debug("whole view's chord %.4f +- %.4f m differs from the %d points near the path (%.4f +- %.4f m): those taken",
                      whole.chord, whole.sigma, band.inlier_count, band.chord, band.sigma)
-        return _off_lane_sigma(band, near, curvature, options, driven, direction)
-    return _off_lane_sigma(whole, per_camera, curvature, options, driven, direction)
+        return _off_lane_sigma(band, near, options)
+    return _off_lane_sigma(whole, per_camera, options)
 
 
 def _with_off_lane(points: PointChords, curvature: float, options: GroundScaleOptions, driven: np.ndarray | None, direction: float) -> PointChords:
@@ -774,8 +774,7 @@ def _with_off_lane(points: PointChords, curvature: float, options: GroundScaleOp
     return dataclasses.replace(points, off_lane=beyond)
 
 
-def _off_lane_sigma(measured: GroundChord, per_camera: Sequence[PointChords], curvature: float, options: GroundScaleOptions,
-                    driven: np.ndarray | None, direction: float) -> GroundChord:
+def _off_lane_sigma(measured: GroundChord, per_camera: Sequence[PointChords], options: GroundScaleOptions) -> GroundChord:
     """``measured`` (from road points beyond the own lane too) with its sigma widened by the road's
     shape there: a cross-slope change ``c`` (``off_lane_slope_sigma``) at the lane's edge puts a point
     ``d`` beyond it ``c d`` off the lane's plane, which reads its chord ``c d / h`` off (module docstring,
@@ -786,10 +785,9 @@ def _off_lane_sigma(measured: GroundChord, per_camera: Sequence[PointChords], cu
         return measured
     beyond = []
     for points, mask in zip(per_camera, measured.inliers):
-        if points.rays is None or not np.any(mask):
+        if points.rays is None or points.off_lane is None or not np.any(mask):
             continue
-        _, lateral, _ = path_distance(points.rays.f[mask], points.rays.offset, points.rays.height, curvature, driven, direction)
-        beyond.append(np.maximum(np.abs(lateral) - options.lane_half_width_m, 0.0) / points.rays.height)
+        beyond.append(np.abs(points.off_lane[mask]) / points.rays.height)  # set by _with_off_lane
     if not beyond:
         return measured
     relative = options.off_lane_slope_sigma * float(np.mean(np.concatenate(beyond)))
