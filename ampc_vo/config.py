@@ -257,6 +257,11 @@ class SmootherConfig:
     weak_motion_translation_sigma_m: float = 1.0
     max_pair_gap: int = 1
     gate_px: float = 3.0
+    # each camera's rotation relative to its body between two keyframes (bracket and mirror-arm
+    # vibration), marginalised per camera and keyframe pair in the GEC (DESIGN 11, "Camera mounts"):
+    # sigma = hypot(floor, per_mps * speed); both 0: rigid mounts, the body's rotation is each camera's
+    camera_mount_sigma_deg: float = 0.02
+    camera_mount_sigma_deg_per_mps: float = 0.004
     max_window_tracks_per_camera: int = 150
     # rolling-shutter rows in the epipolar factors: each observation with its row's exposure time
     # (DESIGN 11, "Rolling shutter"); off: one capture time per image (the readout's measured cost is small,
@@ -288,6 +293,8 @@ class SmootherConfig:
             raise _error(where + "hitch_limit_deg", f"must be below 180, got {self.hitch_limit_deg}")
         _at_least(self.max_window_tracks_per_camera, 2, where + "max_window_tracks_per_camera")
         _at_least(self.max_pair_gap, 1, where + "max_pair_gap")
+        _at_least(self.camera_mount_sigma_deg, 0.0, where + "camera_mount_sigma_deg")
+        _at_least(self.camera_mount_sigma_deg_per_mps, 0.0, where + "camera_mount_sigma_deg_per_mps")
 
 
 @dataclass(frozen=True)

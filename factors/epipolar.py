@@ -202,6 +202,90 @@ def huber_rows(whitened: np.ndarray, huber_k: float | np.ndarray | None) -> tupl
     return robust, scale
 
 
+@dataclass(frozen=True)
+class MountRotations:
+    """The camera mounts' rotation between the two views of each block, a nuisance of the GEC
+    (DESIGN 11, "Camera mounts"): ``block_starts`` (B,) the first row of each block (rows sorted by
+    pair, blocks contiguous), ``row_block`` (N,) each row's block, ``block_pair`` (B,) each block's
+    keyframe pair, ``sigma`` (B,) radians per axis."""
+
+    block_starts: np.ndarray
+    row_block: np.ndarray
+    block_pair: np.ndarray
+    sigma: np.ndarray
+
+
+_MOUNT_ITERATIONS = 10  # at most this many reweighted solves of the blocks' rotations (Huber rows; 1 when Gaussian)
+_MOUNT_TOLERANCE = 1e-4  # ... until no rotation changes by more than this fraction of its prior sigma
+
+
+def _reweighted(total: np.ndarray, per_row: np.ndarray, weight: np.ndarray, row_block: np.ndarray) -> np.ndarray:
+    """``sum_n weight_n per_row_n`` per block from the unweighted sums ``total`` (B, ...): only the
+    rows with a weight below 1 (Huber's few outliers) are visited."""
+    reduced = np.flatnonzero(weight < 1.0)
+    if reduced.size == 0:
+        return total
+    result = total.copy()
+    np.add.at(result, row_block[reduced], -(1.0 - weight[reduced]).reshape((-1,) + (1,) * (per_row.ndim - 1)) * per_row[reduced])
+    return result
+
+
+def _mount_rotations(
+    whitened: np.ndarray, bearing_part: np.ndarray, outer: np.ndarray, normal: np.ndarray, mount: MountRotations, huber_k: float | None
+) -> np.ndarray:
+    """The rotation ``epsilon`` (B, 3) of view j's bearings per block that minimises the block's
+    robust cost ``sum rho(z + B epsilon) + |epsilon|^2 / (2 sigma^2)`` (rows linear in
+    ``epsilon``): iteratively reweighted least squares from ``epsilon = 0`` with Huber's weights.
+    ``outer`` (N, 3, 3): the rows' ``b b^T``; ``normal`` (B, 3, 3): their sums per block."""
+    prior = np.eye(3) / (mount.sigma**2)[:, None, None]
+    rows_rhs = bearing_part * whitened[:, None]
+    rhs = np.add.reduceat(rows_rhs, mount.block_starts, axis=0)
+    epsilon = np.zeros((mount.block_starts.shape[0], 3))
+    for _ in range(_MOUNT_ITERATIONS if huber_k is not None else 1):
+        corrected = whitened + np.einsum("na,na->n", bearing_part, epsilon[mount.row_block])
+        _, scale = huber_rows(corrected, huber_k)
+        weight = scale * scale  # Huber's Gauss-Newton weight rho'(r) / r
+        system = _reweighted(normal, outer, weight, mount.row_block) + prior
+        previous = epsilon
+        epsilon = -np.linalg.solve(system, _reweighted(rhs, rows_rhs, weight, mount.row_block)[:, :, None])[:, :, 0]
+        if np.max(np.abs(epsilon - previous) / mount.sigma[:, None]) < _MOUNT_TOLERANCE:
+            break
+    return epsilon
+
+
+def _marginalise_mount_rotations(
+    by_motion: np.ndarray,
+    robust: np.ndarray,
+    scale: np.ndarray,
+    bearing_part: np.ndarray,
+    outer: np.ndarray,
+    normal: np.ndarray,
+    epsilon: np.ndarray,
+    mount: MountRotations,
+    information: np.ndarray,
+    gradient: np.ndarray,
+) -> None:
+    """Eliminate the blocks' rotations (:func:`_mount_rotations`) from the pairs' Gauss-Newton
+    ``information`` (P, 6, 6) and ``gradient`` (P, 6), in place: the Schur complement of the
+    augmented system at ``epsilon``, robust rows ``r`` with Jacobians ``[A B]`` (``A`` the
+    whitened ``by_motion`` and ``B`` the ``bearing_part``, both times the rows' Huber ``scale``)
+    and the prior rows ``epsilon / sigma``:
+
+        information -= A^T B H^-1 B^T A,   gradient -= A^T B H^-1 (B^T r + epsilon / sigma^2),
+        H = B^T B + I / sigma^2
+
+    (the last bracket is ~0 at the solved ``epsilon``). ``B`` is held at the current motion
+    (variable projection; its change with the motion is left out, Kaufman's approximation).
+    ``outer``, ``normal``: as in :func:`_mount_rotations`."""
+    starts, weight = mount.block_starts, scale * scale
+    system = _reweighted(normal, outer, weight, mount.row_block) + np.eye(3) / (mount.sigma**2)[:, None, None]
+    coupling = np.add.reduceat((by_motion * weight[:, None])[:, :, None] * bearing_part[:, None, :], starts, axis=0)  # (B, 6, 3) = A^T B
+    mount_gradient = np.add.reduceat(bearing_part * (robust * scale)[:, None], starts, axis=0) + epsilon / (mount.sigma**2)[:, None]
+    solved = np.linalg.solve(system, np.concatenate([np.swapaxes(coupling, 1, 2), mount_gradient[:, :, None]], axis=2))  # (B, 3, 7)
+    np.add.at(information, mount.block_pair, -coupling @ solved[:, :, :6])
+    np.add.at(gradient, mount.block_pair, -(coupling @ solved[:, :, 6:])[:, :, 0])
+
+
 _EIGEN_FLOOR = 1e-12  # relative: information directions below it carry no information
 
 
@@ -212,6 +296,7 @@ def stacked_epipolar_error(
     rows: dict[str, np.ndarray],
     huber_k: float | None,
     jacobians: bool = False,
+    mount: MountRotations | None = None,
 ) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """Compressed residual (6 P + 1,) of a :class:`StackedEpipolarFactor` and, if ``jacobians``, one
     (6 P + 1, 6) Jacobian per pose.
@@ -225,7 +310,10 @@ def stacked_epipolar_error(
     system: with ``J^T J = V diag(w) V^T`` and ``g = J^T z``, rows ``diag(sqrt w) V^T`` and
     residual ``diag(1/sqrt w) V^T g``; the last row carries the remaining residual norm (zero
     Jacobian), so the error ``|r|^2 / 2`` is exactly the sum of the Huber losses and the linear
-    system (information and gradient) is exactly that of the N rows.
+    system (information and gradient) is exactly that of the N rows. With ``mount``, each block's
+    camera rotation relative to its body is a nuisance: solved per block (:func:`_mount_rotations`,
+    the rows then taken at it and its prior added to the cost) and eliminated from the system
+    before the compression (:func:`_marginalise_mount_rotations`).
     """
     motions = [relative_motion(poses[i], poses[j]) for i, j in pair_keys]
     rotations = np.array([T_i_j.rotation().matrix() for T_i_j, _ in motions])
@@ -233,18 +321,31 @@ def stacked_epipolar_error(
     sampson, by_motion = gec_sampson_pairs_jacobian(
         rows["bearings_i"], rows["bearings_j"], rotations, translations, rows["centers_i"], rows["centers_j"], pair_starts
     )
-    whitened, scale = huber_rows(sampson / rows["sigma"], huber_k)
-    weighted = by_motion * (scale / rows["sigma"])[:, None]
+    whitened = sampson / rows["sigma"]
+    by_motion = by_motion / rows["sigma"][:, None]
+    prior_cost = 0.0
+    if mount is not None:
+        bearing_part = by_motion[:, :3] - np.cross(rows["centers_j"], by_motion[:, 3:])  # d z / d epsilon (bearings only)
+        outer = bearing_part[:, :, None] * bearing_part[:, None, :]
+        normal = np.add.reduceat(outer, mount.block_starts, axis=0)
+        epsilon = _mount_rotations(whitened, bearing_part, outer, normal, mount, huber_k)
+        whitened = whitened + np.einsum("na,na->n", bearing_part, epsilon[mount.row_block])
+        prior_cost = float(np.sum((epsilon / mount.sigma[:, None]) ** 2))
+    whitened, scale = huber_rows(whitened, huber_k)
+    weighted = by_motion * scale[:, None]
     bounds = list(pair_starts) + [whitened.shape[0]]
     information = np.array([weighted[start:stop].T @ weighted[start:stop] for start, stop in zip(bounds[:-1], bounds[1:])])  # (P, 6, 6)
     gradient = np.add.reduceat(weighted * whitened[:, None], pair_starts, axis=0)  # (P, 6)
+    cost = float(whitened @ whitened) + prior_cost
+    if mount is not None:
+        _marginalise_mount_rotations(by_motion, whitened, scale, bearing_part, outer, normal, epsilon, mount, information, gradient)
     eigenvalues, eigenvectors = np.linalg.eigh(information)
     floor = _EIGEN_FLOOR * np.maximum(eigenvalues[:, -1:], 1e-300)
     informative = eigenvalues > floor
     root = np.sqrt(np.where(informative, eigenvalues, 0.0))
     projected = np.einsum("pab,pa->pb", eigenvectors, gradient)  # V^T g
     compressed = np.where(informative, projected / np.where(informative, root, 1.0), 0.0)
-    remainder = max(float(whitened @ whitened) - float(np.sum(compressed * compressed)), 0.0)
+    remainder = max(cost - float(np.sum(compressed * compressed)), 0.0)
     residual = np.concatenate([compressed.ravel(), [np.sqrt(remainder)]])
     if not jacobians:
         return residual, None
@@ -257,6 +358,14 @@ def stacked_epipolar_error(
     return residual, blocks
 
 
+def _per_block(values: float | list[float], count: int, name: str) -> list[float]:
+    """One positive finite value per block from one value or a list of ``count``; ``ValueError`` otherwise."""
+    per_block = [float(values)] * count if np.isscalar(values) else [float(value) for value in values]
+    if len(per_block) != count or not all(np.isfinite(value) and value > 0 for value in per_block):
+        raise ValueError(f"{name} must be one positive number or one per block, got {values!r}")
+    return per_block
+
+
 class StackedEpipolarFactor(gtsam.CustomFactor):
     """Many :class:`EpipolarBlock` s in one vectorised factor: every camera (and camera pair) of every
     keyframe pair that a new keyframe closes, on one or both bodies (module docstring residual).
@@ -267,15 +376,22 @@ class StackedEpipolarFactor(gtsam.CustomFactor):
     Huber-weighted rows): the smoother's hot path (issue 5 timing). ``sigmas``: the Sampson sigma
     (pixel sigma / focal) of each block, or one for all; ``huber_k`` in sigmas (None: Gaussian).
     Keys: the distinct ``Pose3`` keys of the blocks, in order of first appearance. The noise model
-    is ``Unit`` (whitening and robust weighting happen inside).
+    is ``Unit`` (whitening and robust weighting happen inside). ``mount_sigmas`` (radians per axis,
+    one or one per block; None: rigid mounts): the rotation of each block's camera relative to its
+    body between the two views, marginalised (:func:`_marginalise_mount_rotations`).
     """
 
-    def __init__(self, blocks: list[EpipolarBlock], sigmas: float | list[float], huber_k: float | None = 1.345) -> None:
+    def __init__(
+        self,
+        blocks: list[EpipolarBlock],
+        sigmas: float | list[float],
+        huber_k: float | None = 1.345,
+        mount_sigmas: float | list[float] | None = None,
+    ) -> None:
         if not blocks:
             raise ValueError("StackedEpipolarFactor needs at least one block")
-        sigma_of_block = [float(sigmas)] * len(blocks) if np.isscalar(sigmas) else [float(sigma) for sigma in sigmas]
-        if len(sigma_of_block) != len(blocks) or not all(np.isfinite(sigma) and sigma > 0 for sigma in sigma_of_block):
-            raise ValueError(f"sigmas must be one positive number or one per block, got {sigmas!r}")
+        sigma_of_block = _per_block(sigmas, len(blocks), "sigmas")
+        mount_of_block = None if mount_sigmas is None else _per_block(mount_sigmas, len(blocks), "mount_sigmas")
         if huber_k is not None and not huber_k > 0:
             raise ValueError(f"huber_k must be positive or None, got {huber_k!r}")
         keys: list[int] = []
@@ -302,9 +418,17 @@ class StackedEpipolarFactor(gtsam.CustomFactor):
         pair_of_row.flags.writeable = False
         pair_keys = np.array(pairs, dtype=np.int64)
         dimension = 6 * len(pairs) + 1
+        mount = None
+        if mount_of_block is not None:
+            mount = MountRotations(
+                block_starts=np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64),
+                row_block=np.repeat(np.arange(len(ordered)), counts),
+                block_pair=np.array([pairs.index(pair_of_block[index]) for index in order], dtype=np.int64),
+                sigma=_read_only(np.array([mount_of_block[index] for index in order])),
+            )
 
-        def evaluate(*poses, jacobians=False, pair_keys=pair_keys, pair_starts=pair_starts, rows=rows, huber_k=huber_k):
-            return stacked_epipolar_error(list(poses), pair_keys, pair_starts, rows, huber_k, jacobians)
+        def evaluate(*poses, jacobians=False, pair_keys=pair_keys, pair_starts=pair_starts, rows=rows, huber_k=huber_k, mount=mount):
+            return stacked_epipolar_error(list(poses), pair_keys, pair_starts, rows, huber_k, jacobians, mount)
 
         super().__init__(gtsam.noiseModel.Unit.Create(dimension), keys, make_error_function(keys, (POSE,) * len(keys), evaluate))
         self.blocks = tuple(ordered)  # row order of the (uncompressed) correspondences

@@ -18,6 +18,10 @@ Factors added with keyframe k (``j`` < k are the keyframes still in the window):
   longer gaps made the scale collapse on the demo route), gated at ``cross_camera_gate_px``. All
   blocks of keyframe k form one :class:`factors.StackedEpipolarFactor` (6 rows per keyframe pair
   for GTSAM, Huber per correspondence inside): one Python call per evaluation (issue 5 timing).
+  Each block's camera may turn relative to its body between the views (bracket vibration,
+  :meth:`ArticulatedSmoother._mount_sigma`): that rotation is marginalised inside the factor
+  (DESIGN 11, "Camera mounts"), so a shaking trailer camera is not read as body pitch and, through
+  its lever arm, as metric scale.
   Outliers: an observation is used only if the RANSAC of its keyframe pair (k-1, k) kept it
   (``MotionInit.inlier_tracks``; per-frame outliers otherwise survive into longer pairs and a
   handful of them, through their large Sampson Jacobians, biased the window by metres), then
@@ -247,6 +251,9 @@ _CAPTURE_SHIFT_M = 0.003
 _CAPTURE_TURN_RAD = float(np.radians(0.02))
 
 
+_RIGID_MOUNT_RAD = 1e-9  # a block's mount sigma of 0 beside others that are not: as good as rigid
+
+
 def _pose_sigmas(rotation_rad: float, translation_m: float) -> gtsam.noiseModel.Base:
     return gtsam.noiseModel.Diagonal.Sigmas(_pose_sigma_vector(rotation_rad, translation_m))
 
@@ -393,9 +400,15 @@ class ArticulatedSmoother:
         if index is None:
             return False
         pending = _Pending()
-        blocks: list[tuple[EpipolarBlock, float]] = []
+        blocks: list[tuple[EpipolarBlock, float, float]] = []
         for body in keyframe.capture_twists:
             self._add_epipolar_factors(body, keyframe, pending, blocks)
+        if not blocks:
+            # the optimised chord fell below the standstill distance (a stopping truck's last pair
+            # whose first guess was the constant-velocity chord): keep the measurements as built, never
+            # drop them (without them the hitch of a stop in publish: latest came out at a 3.4 deg sigma)
+            logger.debug("frame %d: capture-time extrinsics not rebuilt: no pair moved under the optimised poses", keyframe.frame)
+            return False
         keyframe.epipolar_factor = self._add_stacked_epipolar(blocks, pending)
         try:
             self._smoother.update(pending.graph, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap(), [index])
@@ -565,7 +578,7 @@ class ArticulatedSmoother:
 
         bodies = ["tractor"] + (["trailer"] if self.use_trailer else [])
         standstill = init.tractor_status is MotionStatus.STANDSTILL
-        epipolar_blocks: list[tuple[EpipolarBlock, float]] = []
+        epipolar_blocks: list[tuple[EpipolarBlock, float, float]] = []
         for body in bodies:
             key = X if body == "tractor" else Y
             # in the joint modes the trailer pose follows from X and A (joint loop): no own motion priors
@@ -794,16 +807,19 @@ class ArticulatedSmoother:
         """Sampson residual sigma of a camera: pixel sigma / focal length (DESIGN section 3)."""
         return self.config.smoother.pixel_sigma / (0.5 * (camera.fx + camera.fy))
 
-    def _add_stacked_epipolar(self, blocks: list[tuple[EpipolarBlock, float]], pending: _Pending) -> object:
+    def _add_stacked_epipolar(self, blocks: list[tuple[EpipolarBlock, float, float]], pending: _Pending) -> object:
         """One :class:`factors.StackedEpipolarFactor` with all GEC blocks of the new keyframe (both
-        bodies, every keyframe pair and camera pair), Huber per residual, 6 rows per keyframe pair.
-        It is marginalised when its oldest key leaves the window: with pairs up to 3 keyframes
-        apart, as before when the rows of (k-3, k) had factors of their own."""
+        bodies, every keyframe pair and camera pair), Huber per residual, 6 rows per keyframe pair;
+        each block ``(block, Sampson sigma, mount sigma)`` (:meth:`_mount_sigma`; all 0: rigid
+        mounts). It is marginalised when its oldest key leaves the window: with pairs up to 3
+        keyframes apart, as before when the rows of (k-3, k) had factors of their own."""
         if not blocks:
             return None
         from factors import StackedEpipolarFactor
 
-        factor = StackedEpipolarFactor([block for block, _ in blocks], [sigma for _, sigma in blocks], self.config.smoother.huber_k)
+        mount_sigmas = [max(mount, _RIGID_MOUNT_RAD) for _, _, mount in blocks]
+        factor = StackedEpipolarFactor([block for block, _, _ in blocks], [sigma for _, sigma, _ in blocks], self.config.smoother.huber_k,
+                                       mount_sigmas=mount_sigmas if max(mount for _, _, mount in blocks) > 0.0 else None)
         pending.graph.add(factor)
         pending.residuals += len(factor)
         return factor
@@ -818,7 +834,15 @@ class ArticulatedSmoother:
             return np.ones(index.shape[0], dtype=bool)
         return np.isin(observations.track_ids[index], verified)
 
-    def _add_epipolar_factors(self, body: str, keyframe: _Keyframe, pending: _Pending, blocks: list[tuple[EpipolarBlock, float]]) -> bool:
+    def _mount_sigma(self, chord_m: float, dt: float) -> float:
+        """Sigma (radians per axis) of a camera's rotation relative to its body between two views
+        ``dt`` seconds and ``chord_m`` apart (DESIGN 11, "Camera mounts"): a floor (engine shake,
+        bracket flex) and road-excited vibration in proportion to the speed at graph construction."""
+        config = self.config.smoother
+        speed = chord_m / dt if dt > 0.0 else 0.0
+        return float(np.radians(np.hypot(config.camera_mount_sigma_deg, config.camera_mount_sigma_deg_per_mps * speed)))
+
+    def _add_epipolar_factors(self, body: str, keyframe: _Keyframe, pending: _Pending, blocks: list[tuple[EpipolarBlock, float, float]]) -> bool:
         """GEC blocks between keyframe k and the earlier keyframes of the window (module docstring),
         appended to ``blocks``. Returns True when at least one block links k to k-1."""
         config = self.config
@@ -845,6 +869,7 @@ class ArticulatedSmoother:
             T_j_k = relative_pose(self._pose(key(j), pending), T_world_k)
             if np.linalg.norm(T_j_k[:3, 3]) < config.keyframes.standstill_distance_m:
                 continue
+            mount_sigma = self._mount_sigma(float(np.linalg.norm(T_j_k[:3, 3])), keyframe.timestamp - earlier.timestamp)
             twist_j = self._body_twist(body, earlier, pending)
             extrinsics_j = {camera.name: self._capture_extrinsic(earlier, camera, twist_j) for camera in cameras}
             for camera_j in cameras:
@@ -887,7 +912,7 @@ class ArticulatedSmoother:
                     correspondences = self._correspondences((camera_j, first, index_j, twist_j, T_body_camera_j),
                                                             (camera_k, second, index_k, twist_k, T_body_camera_k))
                     sigma = 0.5 * (self._gec_sigma(camera_j) + self._gec_sigma(camera_k))
-                    blocks.append((EpipolarBlock(key(j), key(k), correspondences), sigma))
+                    blocks.append((EpipolarBlock(key(j), key(k), correspondences), sigma, mount_sigma))
                     linked_previous |= j == k - 1
         return linked_previous
 

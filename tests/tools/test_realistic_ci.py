@@ -68,7 +68,8 @@ def test_capture_time_extrinsics_are_rebuilt_from_the_optimised_twist(tmp_path, 
     routes (DESIGN 11): a keyframe's epipolar factor is built with each camera moved along its body's
     twist from the first guess; where the optimised twist moves a camera by more than a few
     millimetres, the factor is rebuilt with it and replaces the first in the smoother (the old one is
-    gone from its graph, the new one is there), and the run keeps issue 16's limits."""
+    gone from its graph, the new one is there), a rebuild that finds no pair keeps the first, and the
+    run keeps issue 16's limits."""
     import yaml
 
     from ampc_vo.backend.smoother import ArticulatedSmoother
@@ -80,11 +81,22 @@ def test_capture_time_extrinsics_are_rebuilt_from_the_optimised_twist(tmp_path, 
                       "trailer_left": {"offset_ms": 19}, "trailer_rear": {"offset_ms": 38}}
     result = simulate(sim_config_from_dict(raw, path))
     assert result.measurements.camera_timestamps is not None
-    refreshed = []
+    refreshed, starved = [], []
     original = ArticulatedSmoother._refresh_capture_twists
 
     def spy(self, keyframe):
         before = keyframe.epipolar_factor
+        if not starved:
+            # once: a rebuild that finds no moving pair (a stopping truck whose optimised chord fell
+            # below the standstill distance) keeps the factor as built instead of dropping it
+            calls = []
+            with monkeypatch.context() as patch:
+                patch.setattr(self, "_add_epipolar_factors", lambda *args: calls.append(args) and False)
+                done = original(self, keyframe)
+            if calls:
+                graph = self._smoother.getFactors()
+                starved.append((done, keyframe.epipolar_factor is before, any(graph.at(i) is before for i in range(graph.size()) if graph.exists(i))))
+                return done
         done = original(self, keyframe)
         if done:
             graph = self._smoother.getFactors()
@@ -97,6 +109,7 @@ def test_capture_time_extrinsics_are_rebuilt_from_the_optimised_twist(tmp_path, 
     run_on_frames(result.rig, config, result.measurements.frames(result.rig), tmp_path / "run", total=len(result.trajectory))
     assert len(refreshed) >= 3  # the standing start: the first guesses' twists are far off
     assert all(not old and new for old, new in refreshed)
+    assert starved == [(False, True, True)]
     data = tmp_path / "data"
     write_dataset(data, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory, measurements=result.measurements)
     metrics = evaluate_output(tmp_path / "run", load_groundtruth(data)).metrics
