@@ -41,6 +41,8 @@ def test_partial_override_and_round_trip(tmp_path):
         ({"rerun": {"jpeg_quality": 0}}, "rerun.jpeg_quality"),
         ({"rerun": {"image_every": -1}}, "rerun.image_every"),
         ({"frontend_worker": "gpu"}, "frontend_worker"),
+        ({"smoother": {"camera_mount_sigma_deg": -0.1}}, "smoother.camera_mount_sigma_deg"),
+        ({"smoother": {"camera_mount_sigma_deg_per_mps": -0.01}}, "smoother.camera_mount_sigma_deg_per_mps"),
     ],
 )
 def test_errors_name_file_and_field(tmp_path, raw, field):

@@ -341,6 +341,10 @@ def test_stacked_factor_rejects_bad_input():
         StackedEpipolarFactor(blocks, [SIGMA])
     with pytest.raises(ValueError):
         StackedEpipolarFactor(blocks, -1.0)
+    with pytest.raises(ValueError, match="mount_sigmas"):
+        StackedEpipolarFactor(blocks, SIGMA, mount_sigmas=[0.001, 0.001])
+    with pytest.raises(ValueError, match="mount_sigmas"):
+        StackedEpipolarFactor(blocks, SIGMA, mount_sigmas=0.0)
 
 
 def test_evaluation_cache_returns_identical_results_and_follows_value_changes():
