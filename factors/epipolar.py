@@ -16,6 +16,9 @@ sign is that of the triple product ``r_k``. Its noise sigma is pixel sigma / foc
 The Sampson residual is scale-free in the baseline ``d = R c_j + t - c_i``: at standstill with a
 single camera (``d = 0``) it is undefined (returned as 0 with a zero Jacobian), so do not add this
 factor between keyframes that did not move.
+
+:class:`StackedEpipolarFactor` (the smoother's) stacks many such blocks and can marginalise a small
+rotation of each block's camera relative to its body (``mount_sigmas``; DESIGN 11, "Camera mounts").
 """
 from __future__ import annotations
 
