@@ -66,6 +66,7 @@ import time
 from functools import partial
 from dataclasses import dataclass, field, replace
 from enum import Enum
+from typing import Callable
 
 import gtsam
 import numpy as np
@@ -249,9 +250,6 @@ class _Pending:
 # it by more than this (rad) over its capture delay (ArticulatedSmoother._refresh_capture_twists)
 _CAPTURE_SHIFT_M = 0.003
 _CAPTURE_TURN_RAD = float(np.radians(0.02))
-
-
-_RIGID_MOUNT_RAD = 1e-9  # a block's mount sigma of 0 beside others that are not: as good as rigid
 
 
 def _pose_sigmas(rotation_rad: float, translation_m: float) -> gtsam.noiseModel.Base:
@@ -450,12 +448,12 @@ class ArticulatedSmoother:
         prior = _pose_sigmas(np.radians(config.prior_rotation_sigma_deg), config.prior_translation_sigma_m)
         restart.graph.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(T_world_tractor), prior))
         if self._wheel_scale:
-            self._add_wheel_scale_prior(k, float(pending.values.atDouble(W(k))), keyframe.timestamp, restart)
+            self._add_scalar_prior(W(k), float(pending.values.atDouble(W(k))), self.config.scale.wheel_scale_sigma, keyframe.timestamp, restart)
         if self.use_trailer:
             T_world_trailer = pending.values.atPose3(Y(k)).matrix()
             restart.insert(Y(k), T_world_trailer, keyframe.timestamp)
             if self._trailer_crab:
-                self._add_crab_prior(k, float(pending.values.atDouble(B(k))), keyframe.timestamp, restart)
+                self._add_scalar_prior(B(k), float(pending.values.atDouble(B(k))), self._crab_sigma, keyframe.timestamp, restart)
             if self.joint:
                 hitch = pending.values.atDouble(A(k))
                 restart.insert(A(k), float(hitch), keyframe.timestamp)
@@ -522,14 +520,14 @@ class ArticulatedSmoother:
         prior = _pose_sigmas(np.radians(config.prior_rotation_sigma_deg), config.prior_translation_sigma_m)
         pending.graph.add(gtsam.PriorFactorPose3(X(first.index), gtsam.Pose3(T_world_tractor), prior))
         if self._wheel_scale:
-            self._add_wheel_scale_prior(first.index, 1.0, first.timestamp, pending)
+            self._add_scalar_prior(W(first.index), 1.0, self.config.scale.wheel_scale_sigma, first.timestamp, pending)
         if not self.use_trailer:
             return
         hitch = next_init.hitch_prev if next_init.hitch_prev is not None else 0.0
         T_world_trailer = T_world_tractor @ make_pose(rot_z(hitch), np.zeros(3))
         pending.insert(Y(first.index), T_world_trailer, first.timestamp)
         if self._trailer_crab:
-            self._add_crab_prior(first.index, 0.0, first.timestamp, pending)
+            self._add_scalar_prior(B(first.index), 0.0, self._crab_sigma, first.timestamp, pending)
         if self.joint:
             pending.insert(A(first.index), float(hitch), first.timestamp)
             pending.graph.add(gtsam.PriorFactorDouble(A(first.index), float(hitch), gtsam.noiseModel.Isotropic.Sigma(1, np.radians(config.hitch_prior_sigma_deg))))
@@ -625,10 +623,24 @@ class ArticulatedSmoother:
         """The trailer's crab angle is a variable ``B(k)`` (``smoother.trailer_crab_sigma_deg``)."""
         return self.trailer_nonholonomic and self.config.smoother.trailer_crab_sigma_deg is not None
 
-    def _add_crab_prior(self, k: int, crab: float, timestamp: float, pending: _Pending) -> None:
-        """``B(k) = crab`` with the prior ``smoother.trailer_crab_sigma_deg`` (first keyframe, restart)."""
-        pending.insert(B(k), crab, timestamp)
-        pending.graph.add(gtsam.PriorFactorDouble(B(k), crab, gtsam.noiseModel.Isotropic.Sigma(1, np.radians(self.config.smoother.trailer_crab_sigma_deg))))
+    @property
+    def _crab_sigma(self) -> float:
+        """Prior sigma (radians) of the crab angle at the first keyframe and at a restart."""
+        return float(np.radians(self.config.smoother.trailer_crab_sigma_deg))
+
+    @staticmethod
+    def _add_scalar_prior(key: int, value: float, sigma: float, timestamp: float, pending: _Pending) -> None:
+        """A scalar variable ``key = value`` with a prior of ``sigma`` (``W``, ``B`` at the first keyframe and at a restart)."""
+        pending.insert(key, value, timestamp)
+        pending.graph.add(gtsam.PriorFactorDouble(key, value, gtsam.noiseModel.Isotropic.Sigma(1, sigma)))
+
+    def _add_random_walk(self, symbol: Callable[[int], int], keyframe: _Keyframe, sigma: float, pending: _Pending) -> None:
+        """``symbol(k)`` starting at ``symbol(k-1)``'s value, tied to it by a random-walk step of
+        ``sigma`` (floored at 1e-5: a standstill keyframe drives no distance)."""
+        k = keyframe.index
+        value = self._double(symbol(k - 1), pending)
+        pending.insert(symbol(k), float(value), keyframe.timestamp)
+        pending.graph.add(gtsam.BetweenFactorDouble(symbol(k - 1), symbol(k), 0.0, gtsam.noiseModel.Isotropic.Sigma(1, max(float(sigma), 1e-5))))
 
     def _add_crab(self, keyframe: _Keyframe, pending: _Pending) -> None:
         """``B(k)``, the trailer's crab angle over the pair (k-1, k) (``factors.nonholonomic``,
@@ -638,21 +650,13 @@ class ArticulatedSmoother:
         trailer's cameras over the window instead of being denied by every pair's arc alike."""
         if not (self.use_trailer and self._trailer_crab):
             return
-        k = keyframe.index
-        crab = self._double(B(k - 1), pending)
-        pending.insert(B(k), float(crab), keyframe.timestamp)
         step = np.radians(self.config.smoother.trailer_crab_random_walk_deg_per_sqrt_100m) * np.sqrt(keyframe.chord / 100.0)
-        pending.graph.add(gtsam.BetweenFactorDouble(B(k - 1), B(k), 0.0, gtsam.noiseModel.Isotropic.Sigma(1, max(float(step), 1e-5))))
+        self._add_random_walk(B, keyframe, step, pending)
 
     @property
     def _wheel_scale(self) -> bool:
         """The wheel odometry's scale is a variable ``W(k)`` (config ``scale.wheel_scale_sigma``)."""
         return self.config.scale.wheel_speed and self.config.scale.wheel_scale_sigma is not None
-
-    def _add_wheel_scale_prior(self, k: int, scale: float, timestamp: float, pending: _Pending) -> None:
-        """``W(k) = scale`` with the prior ``scale.wheel_scale_sigma`` (first keyframe, restart)."""
-        pending.insert(W(k), scale, timestamp)
-        pending.graph.add(gtsam.PriorFactorDouble(W(k), scale, gtsam.noiseModel.Isotropic.Sigma(1, self.config.scale.wheel_scale_sigma)))
 
     def _add_wheel_scale(self, keyframe: _Keyframe, pending: _Pending) -> None:
         """``W(k)``, the wheel odometry's scale at keyframe k (factors.wheel_speed,
@@ -662,12 +666,7 @@ class ArticulatedSmoother:
         pairs, the 2-point solver in turns) calibrate it over the whole drive, not one window."""
         if not self._wheel_scale:
             return
-        k = keyframe.index
-        scale = self._double(W(k - 1), pending)
-        pending.insert(W(k), float(scale), keyframe.timestamp)
-        travelled_km = keyframe.chord / 1000.0
-        sigma = max(self.config.scale.wheel_scale_random_walk_per_sqrt_km * np.sqrt(travelled_km), 1e-5)
-        pending.graph.add(gtsam.BetweenFactorDouble(W(k - 1), W(k), 0.0, gtsam.noiseModel.Isotropic.Sigma(1, sigma)))
+        self._add_random_walk(W, keyframe, self.config.scale.wheel_scale_random_walk_per_sqrt_km * np.sqrt(keyframe.chord / 1000.0), pending)
 
     def wheel_scale(self) -> tuple[float, float | None] | None:
         """The newest estimate of the wheel odometry's scale and its sigma (from the last marginals
@@ -817,9 +816,9 @@ class ArticulatedSmoother:
             return None
         from factors import StackedEpipolarFactor
 
-        mount_sigmas = [max(mount, _RIGID_MOUNT_RAD) for _, _, mount in blocks]
+        mount_sigmas = [mount for _, _, mount in blocks]  # all > 0 (moving pairs) unless both mount keys are 0
         factor = StackedEpipolarFactor([block for block, _, _ in blocks], [sigma for _, sigma, _ in blocks], self.config.smoother.huber_k,
-                                       mount_sigmas=mount_sigmas if max(mount for _, _, mount in blocks) > 0.0 else None)
+                                       mount_sigmas=mount_sigmas if min(mount_sigmas) > 0.0 else None)
         pending.graph.add(factor)
         pending.residuals += len(factor)
         return factor
