@@ -206,7 +206,8 @@ def gec_sampson_pairs_jacobian(
     centers_j: np.ndarray,
     pair_starts: np.ndarray,
     jacobian: bool = True,
-) -> tuple[np.ndarray, np.ndarray | None]:
+    bearing_jacobian: bool = False,
+) -> tuple[np.ndarray, np.ndarray | None] | tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The Sampson GEC of :func:`gec_sampson` / :func:`gec_sampson_jacobian` for rows of several
     motions and cameras at once: rows are sorted by motion (keyframe pair); motion p is
     ``rotations[p]`` (P, 3, 3), ``translations[p]`` (P, 3) and owns rows ``pair_starts[p]`` up to
@@ -216,7 +217,10 @@ def gec_sampson_pairs_jacobian(
 
     Same formulas as :func:`gec_sampson_jacobian` (see its derivation) with the baseline
     ``d_n = R c_j,n + t - c_i,n`` per row; returns the residuals (N,) and, with ``jacobian``,
-    the (N, 6) Jacobian of each row w.r.t. the right perturbation ``[omega, v]`` of its motion.
+    the (N, 6) Jacobian of each row w.r.t. the right perturbation ``[omega, v]`` of its motion;
+    with ``bearing_jacobian`` also the (N, 3) Jacobian w.r.t. a rotation ``f' -> Exp(epsilon) f'`` of
+    view j's bearing alone (``g x ds/dg`` chained through R, the first part of ``J_omega``; the camera
+    mount rotations of ``factors.epipolar.StackedEpipolarFactor``).
 
     Computed component-major (vectors as (3, N) blocks of one stack) so that the three cross
     products ``g x d``, ``d x f``, ``f x g`` and the five row-wise dot products are one gather,
@@ -268,4 +272,6 @@ def gec_sampson_pairs_jacobian(
     result = np.empty((count, 6))
     np.add(chain[0], products[:3] - products[3:], out=result[:, :3].T)
     result[:, 3:] = chain[1].T
+    if bearing_jacobian:
+        return sampson, result, chain[0].T
     return sampson, result

@@ -22,7 +22,7 @@ rotation of each block's camera relative to its body (``mount_sigmas``; DESIGN 1
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -196,7 +196,7 @@ def huber_rows(whitened: np.ndarray, huber_k: float | np.ndarray | None) -> tupl
     magnitude = np.abs(whitened)
     outside = np.flatnonzero(magnitude > huber_k)  # indices: usually few rows, cheaper than a mask
     robust = whitened.copy()
-    scale = np.ones_like(whitened)
+    scale = np.ones(whitened.shape)
     if outside.size:
         k = huber_k[outside] if isinstance(huber_k, np.ndarray) else huber_k
         root = np.sqrt(2.0 * k * magnitude[outside] - k * k)
@@ -210,17 +210,21 @@ class MountRotations:
     """The camera mounts' rotation between the two views of each block, a nuisance of the GEC
     (DESIGN 11, "Camera mounts"): ``block_starts`` (B,) the first row of each block (rows sorted by
     pair, blocks contiguous), ``row_block`` (N,) each row's block, ``block_pair`` (B,) each block's
-    keyframe pair, ``sigma`` (B,) radians per axis."""
+    keyframe pair, ``sigma`` (B,) radians per axis; ``prior_information`` (B, 3, 3), ``I / sigma^2``,
+    follows from ``sigma``."""
 
     block_starts: np.ndarray
     row_block: np.ndarray
     block_pair: np.ndarray
     sigma: np.ndarray
+    prior_information: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "prior_information", _read_only(np.eye(3) / (np.asarray(self.sigma, dtype=float) ** 2)[:, None, None]))
 
 
 _MOUNT_ITERATIONS = 10  # at most this many reweighted solves of the blocks' rotations (Huber rows; 1 when Gaussian)
 _MOUNT_TOLERANCE = 1e-4  # ... until no rotation changes by more than this fraction of its prior sigma
-
 
 def _reweighted(total: np.ndarray, per_row: np.ndarray, weight: np.ndarray, row_block: np.ndarray) -> np.ndarray:
     """``sum_n weight_n per_row_n`` per block from the unweighted sums ``total`` (B, ...): only the
@@ -235,25 +239,32 @@ def _reweighted(total: np.ndarray, per_row: np.ndarray, weight: np.ndarray, row_
 
 def _mount_rotations(
     whitened: np.ndarray, bearing_part: np.ndarray, outer: np.ndarray, normal: np.ndarray, mount: MountRotations, huber_k: float | None
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """The rotation ``epsilon`` (B, 3) of view j's bearings per block that minimises the block's
     robust cost ``sum rho(z + B epsilon) + |epsilon|^2 / (2 sigma^2)`` (rows linear in
-    ``epsilon``): iteratively reweighted least squares from ``epsilon = 0`` with Huber's weights.
-    ``outer`` (N, 3, 3): the rows' ``b b^T``; ``normal`` (B, 3, 3): their sums per block."""
-    prior = np.eye(3) / (mount.sigma**2)[:, None, None]
+    ``epsilon``) and the rows ``z + B epsilon`` (N,) at it: iteratively reweighted least squares
+    from ``epsilon = 0`` with Huber's weights, until a step changes no rotation by more than
+    ``_MOUNT_TOLERANCE`` of its sigma or the weights did not change (the next solve would repeat this
+    one). ``outer`` (N, 3, 3): the rows' ``b b^T``; ``normal`` (B, 3, 3): their sums per block."""
     rows_rhs = bearing_part * whitened[:, None]
     rhs = np.add.reduceat(rows_rhs, mount.block_starts, axis=0)
     epsilon = np.zeros((mount.block_starts.shape[0], 3))
-    for _ in range(_MOUNT_ITERATIONS if huber_k is not None else 1):
-        corrected = whitened + np.einsum("na,na->n", bearing_part, epsilon[mount.row_block])
-        _, scale = huber_rows(corrected, huber_k)
+    tolerance = _MOUNT_TOLERANCE * mount.sigma[:, None]
+    _, scale = huber_rows(whitened, huber_k)
+    corrected = whitened
+    for _ in range(_MOUNT_ITERATIONS):
         weight = scale * scale  # Huber's Gauss-Newton weight rho'(r) / r
-        system = _reweighted(normal, outer, weight, mount.row_block) + prior
+        system = _reweighted(normal, outer, weight, mount.row_block) + mount.prior_information
         previous = epsilon
         epsilon = -np.linalg.solve(system, _reweighted(rhs, rows_rhs, weight, mount.row_block)[:, :, None])[:, :, 0]
-        if np.max(np.abs(epsilon - previous) / mount.sigma[:, None]) < _MOUNT_TOLERANCE:
+        corrected = whitened + np.einsum("na,na->n", bearing_part, epsilon[mount.row_block])
+        if huber_k is None or np.all(np.abs(epsilon - previous) < tolerance):
             break
-    return epsilon
+        previous_scale = scale
+        _, scale = huber_rows(corrected, huber_k)
+        if np.array_equal(scale, previous_scale):
+            break
+    return epsilon, corrected
 
 
 def _marginalise_mount_rotations(
@@ -280,13 +291,18 @@ def _marginalise_mount_rotations(
     (the last bracket is ~0 at the solved ``epsilon``). ``B`` is held at the current motion
     (variable projection; its change with the motion is left out, Kaufman's approximation).
     ``outer``, ``normal``: as in :func:`_mount_rotations`."""
-    starts, weight = mount.block_starts, scale * scale
-    system = _reweighted(normal, outer, weight, mount.row_block) + np.eye(3) / (mount.sigma**2)[:, None, None]
-    coupling = np.add.reduceat((by_motion * weight[:, None])[:, :, None] * bearing_part[:, None, :], starts, axis=0)  # (B, 6, 3) = A^T B
-    mount_gradient = np.add.reduceat(bearing_part * (robust * scale)[:, None], starts, axis=0) + epsilon / (mount.sigma**2)[:, None]
-    solved = np.linalg.solve(system, np.concatenate([np.swapaxes(coupling, 1, 2), mount_gradient[:, :, None]], axis=2))  # (B, 3, 7)
-    np.add.at(information, mount.block_pair, -coupling @ solved[:, :, :6])
-    np.add.at(gradient, mount.block_pair, -(coupling @ solved[:, :, 6:])[:, :, 0])
+    weight = scale * scale
+    system = _reweighted(normal, outer, weight, mount.row_block) + mount.prior_information
+    weighted_bearing = bearing_part * weight[:, None]
+    bounds = list(mount.block_starts) + [by_motion.shape[0]]
+    coupling_t = np.empty((len(bounds) - 1, 3, 7))  # per block: (B^T A | B^T r + epsilon / sigma^2)
+    for block, (start, stop) in enumerate(zip(bounds[:-1], bounds[1:])):
+        coupling_t[block, :, :6] = weighted_bearing[start:stop].T @ by_motion[start:stop]
+    coupling_t[:, :, 6] = np.add.reduceat(bearing_part * (robust * scale)[:, None], mount.block_starts, axis=0) + epsilon / (mount.sigma**2)[:, None]
+    solved = np.linalg.solve(system, coupling_t)  # (B, 3, 7)
+    reduction = np.swapaxes(coupling_t[:, :, :6], 1, 2) @ solved  # (B, 6, 7): A^T B H^-1 (B^T A | ...)
+    np.add.at(information, mount.block_pair, -reduction[:, :, :6])
+    np.add.at(gradient, mount.block_pair, -reduction[:, :, 6])
 
 
 _EIGEN_FLOOR = 1e-12  # relative: information directions below it carry no information
@@ -321,18 +337,17 @@ def stacked_epipolar_error(
     motions = [relative_motion(poses[i], poses[j]) for i, j in pair_keys]
     rotations = np.array([T_i_j.rotation().matrix() for T_i_j, _ in motions])
     translations = np.array([T_i_j.translation() for T_i_j, _ in motions])
-    sampson, by_motion = gec_sampson_pairs_jacobian(
-        rows["bearings_i"], rows["bearings_j"], rotations, translations, rows["centers_i"], rows["centers_j"], pair_starts
+    sampson, by_motion, bearing_part = gec_sampson_pairs_jacobian(
+        rows["bearings_i"], rows["bearings_j"], rotations, translations, rows["centers_i"], rows["centers_j"], pair_starts, bearing_jacobian=True
     )
     whitened = sampson / rows["sigma"]
     by_motion = by_motion / rows["sigma"][:, None]
     prior_cost = 0.0
     if mount is not None:
-        bearing_part = by_motion[:, :3] - np.cross(rows["centers_j"], by_motion[:, 3:])  # d z / d epsilon (bearings only)
+        bearing_part = bearing_part / rows["sigma"][:, None]  # d z / d epsilon (view j's bearings only)
         outer = bearing_part[:, :, None] * bearing_part[:, None, :]
         normal = np.add.reduceat(outer, mount.block_starts, axis=0)
-        epsilon = _mount_rotations(whitened, bearing_part, outer, normal, mount, huber_k)
-        whitened = whitened + np.einsum("na,na->n", bearing_part, epsilon[mount.row_block])
+        epsilon, whitened = _mount_rotations(whitened, bearing_part, outer, normal, mount, huber_k)
         prior_cost = float(np.sum((epsilon / mount.sigma[:, None]) ** 2))
     whitened, scale = huber_rows(whitened, huber_k)
     weighted = by_motion * scale[:, None]

@@ -514,6 +514,32 @@ def test_pairs_jacobian_equals_reference_implementation(seed, count, pairs):
     np.testing.assert_array_equal(only, sampson)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_pairs_bearing_jacobian_matches_numerical_derivative_of_turning_view_j_bearings(seed):
+    """``bearing_jacobian``: the derivative w.r.t. a rotation ``f' -> Exp(epsilon) f'`` of view j's
+    bearings alone (the camera mount rotation), central differences; it is the motion Jacobian's
+    rotation part without the lever arm ``c_j x (ds/dd R)``, and the other outputs are unchanged."""
+    from ampc_vo.epipolar import gec_sampson_pairs_jacobian
+
+    bearings_i, bearings_j, rotations, translations, centers_i, centers_j, starts = _pairs_inputs(np.random.default_rng(seed), 60, 2)
+    args = (bearings_i, bearings_j, rotations, translations, centers_i, centers_j, starts)
+    sampson, jacobian, bearing_jacobian = gec_sampson_pairs_jacobian(*args, bearing_jacobian=True)
+    plain_sampson, plain_jacobian = gec_sampson_pairs_jacobian(*args)
+    np.testing.assert_array_equal(sampson, plain_sampson)
+    np.testing.assert_array_equal(jacobian, plain_jacobian)
+    step = 1e-6
+    numerical = np.zeros((len(sampson), 3))
+    for axis in range(3):
+        turn = np.zeros(3)
+        turn[axis] = step
+        plus = gec_sampson_pairs_jacobian(bearings_i, bearings_j @ gtsam.Rot3.Expmap(turn).matrix().T, *args[2:], jacobian=False)[0]
+        minus = gec_sampson_pairs_jacobian(bearings_i, bearings_j @ gtsam.Rot3.Expmap(-turn).matrix().T, *args[2:], jacobian=False)[0]
+        numerical[:, axis] = (plus - minus) / (2 * step)
+    np.testing.assert_allclose(bearing_jacobian, numerical, rtol=1e-5, atol=1e-7 * np.max(np.abs(numerical)))
+    lever_arm = np.cross(centers_j, jacobian[:, 3:])
+    np.testing.assert_allclose(bearing_jacobian, jacobian[:, :3] - lever_arm, rtol=1e-9, atol=1e-12 * np.max(np.abs(jacobian)))
+
+
 def test_pairs_jacobian_zero_baseline_rows_match_reference_and_one_pair_form():
     from ampc_vo.epipolar import gec_sampson_pairs_jacobian
 
