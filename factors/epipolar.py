@@ -226,6 +226,7 @@ class MountRotations:
 _MOUNT_ITERATIONS = 10  # at most this many reweighted solves of the blocks' rotations (Huber rows; 1 when Gaussian)
 _MOUNT_TOLERANCE = 1e-4  # ... until no rotation changes by more than this fraction of its prior sigma
 
+
 def _reweighted(total: np.ndarray, per_row: np.ndarray, weight: np.ndarray, row_block: np.ndarray) -> np.ndarray:
     """``sum_n weight_n per_row_n`` per block from the unweighted sums ``total`` (B, ...): only the
     rows with a weight below 1 (Huber's few outliers) are visited."""
