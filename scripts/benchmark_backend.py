@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
         values = np.array([getattr(t, name) for t in timings]) * 1e3
         print(f"  {name:<13s} median {np.median(values):7.1f} ms   mean {np.mean(values):7.1f} ms")
     print(f"  residuals per update: median {np.median([t.residuals for t in timings]):.0f}; LM iterations per update: median {np.median([t.iterations for t in timings]):.0f}")
-    print(f"backend CPU time per keyframe (process time, unaffected by other load): median {np.median([t.cpu for t in timings]) * 1e3:.1f} ms; "
+    print(f"backend CPU time per keyframe (its thread's CPU time, unaffected by other load): median {np.median([t.cpu for t in timings]) * 1e3:.1f} ms; "
           f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
     print(f"whole run {total:.2f} s = {total / len(frames) * 1e3:.1f} ms/frame; backend {backend_total:.2f} s, "
           f"front-end RANSAC + keyframe selection {total - backend_total:.2f} s")

@@ -135,7 +135,8 @@ def _print_run(worker: str, summary, load_before: float) -> None:
     print(f"  frontend (wait for the images, decoded while the previous frame was tracked, + track + reject + unproject, all cameras): "
           f"{breakdown.get('frontend', 0.0):.1f} ms per frame (median)")
     print(f"  backend: {summary.backend_ms_median:.1f} ms per keyframe (median): "
-          + ", ".join(f"{name} {value:.1f}" for name, value in breakdown.items() if name != "frontend"))
+          + ", ".join(f"{name} {value:.1f}" for name, value in breakdown.items() if name != "frontend")
+          + f"; of it CPU time of the backend's thread {summary.backend_cpu_ms_median:.1f} ms (the rest: waiting for a core)")
     print(f"  backend amortised over frames: {summary.backend_ms_median * keyframe_share:.1f} ms per frame")
 
 

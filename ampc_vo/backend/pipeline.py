@@ -83,6 +83,7 @@ class RunSummary:
     frames_per_second: float = 0.0
     backend_ms_median: float = 0.0
     backend_ms_breakdown: dict = field(default_factory=dict)
+    backend_cpu_ms_median: float = 0.0  # the backend thread's CPU time per keyframe (wall time minus waiting for a core)
     statuses: dict = field(default_factory=dict)
     mode: str = "full"
     dataset: str | None = None  # the folder the frames came from (absolute; evaluate.py checks it)
@@ -399,7 +400,8 @@ class OdometryPipeline:
             frames=self._frames, keyframes=len(self.estimates), distance_m=self._distance, seconds=seconds,
             seconds_per_frame=seconds / max(self._frames, 1), frames_per_second=self._frames / seconds if seconds > 0 else 0.0,
             backend_ms_median=float(np.median([t.total for t in timings]) * 1e3) if timings else 0.0,
-            backend_ms_breakdown=breakdown, statuses=dict(self._statuses), mode=self.config.mode, unscaled_keyframes=self._unscaled_frames,
+            backend_ms_breakdown=breakdown, backend_cpu_ms_median=float(np.median([t.cpu for t in timings]) * 1e3) if timings else 0.0,
+            statuses=dict(self._statuses), mode=self.config.mode, unscaled_keyframes=self._unscaled_frames,
         )
 
 

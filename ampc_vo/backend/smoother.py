@@ -189,7 +189,7 @@ class BackendTiming:
     optimisation: float = 0.0
     marginals: float = 0.0
     residuals: int = 0
-    cpu: float = 0.0  # process CPU seconds of the whole update (robust to other load on the machine)
+    cpu: float = 0.0  # CPU seconds of the backend's thread for the whole update (robust to other load on the machine)
     iterations: int = 0  # LM iterations of the smoother update
 
     @property
@@ -321,7 +321,7 @@ class ArticulatedSmoother:
             leaving = self._release([(self._publish(self._window[index], self._sigma_of(index)), self._at_rest(index))
                                      for index in sorted(self._window) if self._window[index].timestamp < horizon])
         started = time.perf_counter()
-        cpu_started = time.process_time()
+        cpu_started = time.thread_time()
         pending = _Pending()
         published_indices = []
         try:
@@ -364,7 +364,7 @@ class ArticulatedSmoother:
         self._marginals = self._compute_marginals(keyframe.index)
         sigma = self._sigma_of(keyframe.index)
         timing.marginals = time.perf_counter() - started
-        timing.cpu = time.process_time() - cpu_started
+        timing.cpu = time.thread_time() - cpu_started
         self.timings.append(timing)
         if lagged:
             return leaving

@@ -57,6 +57,8 @@ def test_image_pipeline_meets_the_accuracy_of_issue_7(image_run):
     assert metrics.hitch_rmse_deg <= 0.5, metrics
     assert metrics.hitch_max_deg <= 1.5, metrics
     assert "frontend" in summary.backend_ms_breakdown
+    # the backend thread's CPU time: positive, and no more than its wall time (one thread)
+    assert 0.0 < summary.backend_cpu_ms_median <= 1.05 * summary.backend_ms_median + 1.0, summary
 
 
 def test_rerun_recording_verifies_and_has_the_entities(image_run):
