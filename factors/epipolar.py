@@ -424,7 +424,8 @@ class StackedEpipolarFactor(gtsam.CustomFactor):
         order = sorted(range(len(blocks)), key=lambda index: pairs.index(pair_of_block[index]))
         ordered = [blocks[index] for index in order]
         counts = [len(block.correspondences) for block in ordered]
-        pair_of_row = np.repeat(np.array([pairs.index(pair_of_block[index]) for index in order], dtype=np.int64), counts)
+        pair_of_ordered_block = np.array([pairs.index(pair_of_block[index]) for index in order], dtype=np.int64)
+        pair_of_row = np.repeat(pair_of_ordered_block, counts)
         pair_starts = np.searchsorted(pair_of_row, np.arange(len(pairs)))
         rows = {
             "bearings_i": _read_only(np.concatenate([block.correspondences.bearings_i for block in ordered])),
@@ -442,7 +443,7 @@ class StackedEpipolarFactor(gtsam.CustomFactor):
             mount = MountRotations(
                 block_starts=np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64),
                 row_block=np.repeat(np.arange(len(ordered)), counts),
-                block_pair=np.array([pairs.index(pair_of_block[index]) for index in order], dtype=np.int64),
+                block_pair=pair_of_ordered_block,
                 sigma=_read_only(np.array([mount_of_block[index] for index in order])),
             )
 

@@ -866,9 +866,10 @@ class ArticulatedSmoother:
             if earlier is None or earlier.timestamp < lag_start:
                 break
             T_j_k = relative_pose(self._pose(key(j), pending), T_world_k)
-            if np.linalg.norm(T_j_k[:3, 3]) < config.keyframes.standstill_distance_m:
+            chord = float(np.linalg.norm(T_j_k[:3, 3]))
+            if chord < config.keyframes.standstill_distance_m:
                 continue
-            mount_sigma = self._mount_sigma(float(np.linalg.norm(T_j_k[:3, 3])), keyframe.timestamp - earlier.timestamp)
+            mount_sigma = self._mount_sigma(chord, keyframe.timestamp - earlier.timestamp)
             twist_j = self._body_twist(body, earlier, pending)
             extrinsics_j = {camera.name: self._capture_extrinsic(earlier, camera, twist_j) for camera in cameras}
             for camera_j in cameras:
