@@ -26,7 +26,21 @@ def test_zero_at_constant_speed_and_known_value():
     assert factor.unwhitenedError(_values(poses))[0] == pytest.approx(np.sqrt(1.25) * 2.5 / 0.2 - np.sqrt(1.25) / 0.1)
 
 
-@pytest.mark.parametrize("seed", range(5))
+def test_speed_is_signed_by_the_body_heading():
+    """Reversing at the speed driven forward before is a change of velocity of twice that speed
+    (the unsigned magnitude made a chord of the wrong sign free); reversing on and on costs nothing."""
+    noise = gtsam.noiseModel.Isotropic.Sigma(1, 1.0)
+    factor = SmoothSpeedFactor(X(0), X(1), X(2), 0.5, 0.5, noise)
+    heading = gtsam.Rot3.Yaw(0.3)
+    forward = np.array([np.cos(0.3), np.sin(0.3), 0.0])
+    def at(distance):
+        return gtsam.Pose3(heading, gtsam.Point3(*(forward * distance)))
+    assert factor.unwhitenedError(_values([at(0.0), at(1.0), at(0.0)]))[0] == pytest.approx(-4.0)  # +2 m/s, then -2 m/s
+    assert factor.unwhitenedError(_values([at(0.0), at(-1.0), at(-2.0)]))[0] == pytest.approx(0.0, abs=1e-12)
+    assert factor.unwhitenedError(_values([at(0.0), at(1.0), at(1.1)]))[0] == pytest.approx(0.2 - 2.0)
+
+
+@pytest.mark.parametrize("seed", range(8))
 def test_jacobians_match_numerical(seed):
     rng = np.random.default_rng(seed)
     poses = [gtsam.Pose3(gtsam.Rot3.RzRyRx(*rng.normal(size=3)), gtsam.Point3(*(rng.normal(size=3) * 3))) for _ in range(3)]
