@@ -241,14 +241,17 @@ class MotionInitializer:
         self._stereo_options = StereoScaleOptions(pixel_sigma=config.smoother.pixel_sigma, max_depth_m=config.scale.stereo_max_depth_m)
 
     def tractor(self, first: FrameObservations, second: FrameObservations, predicted: np.ndarray, prediction_sigma: float | None = None,
-                speed_before: float | None = None, hitch: float | None = None) -> TractorMotion:
+                speed_before: float | None = None, hitch: float | None = None, speed_age: float = 0.0) -> TractorMotion:
         """Tractor motion ``T_first_second``; ``predicted`` (constant velocity) fills what is unknown:
         the chord in straight driving and everything when there are too few tracks. With
         ``prediction_sigma`` (metres) the RANSAC chord is fused with the predicted one (the 2-point
         chord is weak on gentle curves, DESIGN 2.3; trucks change speed slowly). ``speed_before``
         (m/s, signed, < 0 reversing; measured before the pair; None: unknown): a parallax standstill
         is accepted, and the direction of travel may change, only if the truck could brake from it
-        to rest within the pair (``ransac.max_deceleration_mps2``).
+        to rest within the pair (``ransac.max_deceleration_mps2``). ``speed_age`` (seconds): how long
+        before the pair that speed was last measured (a chord from the tracks, the ground, stereo or
+        the wheels); since then it is the prediction's, and the truck may have braked or sped up at
+        ``ransac.max_deceleration_mps2`` (:meth:`_speed_bounds`).
         ``hitch`` (radians, the window's; None: unknown): where the trailer's box is in the tractor's
         cameras; tracks on it are left out (rig.yaml ``bodies.trailer.box``)."""
         pairs = camera_pairs(self.rig, "tractor", first, second)
@@ -266,12 +269,13 @@ class MotionInitializer:
         ego_pairs = [pair.subset(~mask) for pair, mask in zip(pairs, on_trailer)]
         dt = second.timestamp - first.timestamp
         # at speed the direction of travel cannot change within the pair (it must brake to rest first)
-        direction = None if speed_before is None or self._can_stop(abs(speed_before), dt) else float(np.sign(speed_before))
+        least_speed = None if speed_before is None else self._speed_bounds(speed_before, speed_age)[0]
+        direction = None if least_speed is None or self._can_stop(least_speed, dt) else float(np.sign(speed_before))
         estimate = estimate_tractor_motion(ego_pairs, self.rig.axle_x("tractor"), self._tractor_config, chord_prior=chord_prior, rng=self._rng,
                                            direction=direction)
         if estimate.status is not SolverStatus.STANDSTILL:
             self._standstill_refused = None
-        elif speed_before is not None and not self._may_rest(first.timestamp, second.timestamp, abs(speed_before)):
+        elif least_speed is not None and not self._may_rest(first.timestamp, second.timestamp, least_speed):
             since, speed = self._standstill_refused
             logger.info("frames %d-%d: parallax says standstill, but the truck cannot stop from %.1f m/s within %.2f s "
                         "(ransac.max_deceleration_mps2): motion estimated without the still tracks (median parallax: %s)",
@@ -326,6 +330,14 @@ class MotionInitializer:
         since, speed = self._standstill_refused
         return start - since >= speed / self.config.ransac.max_deceleration_mps2  # at rest before the pair began
 
+    def _speed_bounds(self, speed_before: float, speed_age: float) -> tuple[float, float]:
+        """The least and greatest speed (m/s) of a truck whose speed was ``|speed_before|`` when last
+        measured, ``speed_age`` seconds ago, braking or accelerating at most
+        ``ransac.max_deceleration_mps2`` since (a speed carried on by the constant-velocity prediction
+        through pairs without a measured chord is no evidence that the truck did not stop)."""
+        change = self.config.ransac.max_deceleration_mps2 * max(float(speed_age), 0.0)
+        return max(abs(float(speed_before)) - change, 0.0), abs(float(speed_before)) + change
+
     def _can_stop(self, speed: float, dt: float) -> bool:
         """Whether a truck at ``speed`` (m/s) can be at rest within a pair of ``dt`` seconds: braking
         at ``ransac.max_deceleration_mps2`` from ``v0`` it covers at least ``min(v0 dt - a dt^2 / 2,
@@ -334,8 +346,9 @@ class MotionInitializer:
             return True
         return _least_distance(speed, dt, self.config.ransac.max_deceleration_mps2) <= self.config.keyframes.standstill_distance_m
 
-    def _reachable(self, chord: float, sigma: float, speed: float, dt: float) -> bool:
-        """Whether a truck at ``speed`` (m/s) can cover an axle chord of ``chord`` +- ``sigma`` (m) in
+    def _reachable(self, chord: float, sigma: float, speed: float, dt: float, top_speed: float | None = None) -> bool:
+        """Whether a truck at ``speed`` (m/s; at most ``top_speed`` when its speed was not measured
+        lately, :meth:`_speed_bounds`) can cover an axle chord of ``chord`` +- ``sigma`` (m) in
         ``dt`` seconds, braking or accelerating at most ``ransac.max_deceleration_mps2``: at least
         ``min(v dt - a dt^2 / 2, v^2 / (2 a))``, at most ``v dt + a dt^2 / 2``, with 3 sigma of slack
         and a factor :data:`_SPEED_SLACK` either way, since ``speed`` is itself an estimate (its
@@ -346,7 +359,7 @@ class MotionInitializer:
             return True
         rate = self.config.ransac.max_deceleration_mps2
         least = _least_distance(speed, dt, rate) / _SPEED_SLACK
-        most = (speed * dt + 0.5 * rate * dt**2) * _SPEED_SLACK
+        most = ((speed if top_speed is None else top_speed) * dt + 0.5 * rate * dt**2) * _SPEED_SLACK
         return least - 3.0 * sigma <= abs(chord) <= most + 3.0 * sigma
 
     def _stereo_motion(self, first: FrameObservations, second: FrameObservations, T_guess: np.ndarray) -> StereoMotion | None:
@@ -388,17 +401,19 @@ class MotionInitializer:
         return _ackermann_like(estimate.T_i_j, estimate.yaw_change, chord, self.rig.axle_x("tractor"))
 
     def keyframe(self, first: FrameObservations, second: FrameObservations, tractor: TractorMotion,
-                 hitch_prior: float | None, predicted_trailer: np.ndarray | None = None, speed_before: float | None = None) -> MotionInit:
+                 hitch_prior: float | None, predicted_trailer: np.ndarray | None = None, speed_before: float | None = None,
+                 speed_age: float = 0.0) -> MotionInit:
         """The :class:`MotionInit` of a new keyframe given its tractor motion (see :meth:`tractor`);
-        ``speed_before`` (m/s, the last keyframes' signed speed) bounds the chord a measurement may
-        give (:meth:`_reachable`)."""
+        ``speed_before`` (m/s, the last keyframes' signed speed, measured ``speed_age`` seconds
+        before the pair) bounds the chord a measurement may give (:meth:`_reachable`)."""
+        speed_bounds = None if speed_before is None else self._speed_bounds(speed_before, speed_age)
         tractor_pairs = camera_pairs(self.rig, "tractor", first, second)
         inliers = {}
         if tractor.status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE, MotionStatus.STANDSTILL):
             inliers = _inlier_tracks(tractor_pairs, tractor.estimate.inlier_masks)
         if not self.use_trailer:
             return self._driven(self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=inliers, scale_chord=tractor.scale_chord),
-                                                        tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_before))
+                                                        tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_bounds))
         hitch_prev = hitch = None
         trailer_status = MotionStatus.TOO_FEW_TRACKS
         trailer_pairs = camera_pairs(self.rig, "trailer", first, second)
@@ -454,7 +469,7 @@ class MotionInitializer:
                     T_trailer = predicted
         return self._driven(self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer,
                                                                inlier_tracks=inliers, scale_chord=tractor.scale_chord),
-                                                    tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_before))
+                                                    tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_bounds))
 
     def _driven(self, init: MotionInit) -> MotionInit:
         """``init``, its tractor motion kept as the newest piece of the path driven (:meth:`_driven_path`)."""
@@ -498,7 +513,7 @@ class MotionInitializer:
         return self._with_ground_scale(init, pairs, first, second, tractor.estimate.yaw_sigma).scale_chord
 
     def _with_ground_scale(self, init: MotionInit, pairs: list[CameraPairs], first: FrameObservations, second: FrameObservations, yaw_sigma: float,
-                           speed_before: float | None = None) -> MotionInit:
+                           speed_bounds: tuple[float, float] | None = None) -> MotionInit:
         """``init`` with ``scale_chord`` from the ground plane (``scale.ground_plane``): the metric
         chord of the tractor axle measured from road points of the tractor cameras
         (:mod:`ampc_vo.scale.ground`), given the final tractor motion's rotation and direction and
@@ -506,7 +521,8 @@ class MotionInitializer:
         ``pairs``: the tractor cameras' correspondences of ``first`` and ``second``.
         An existing ``scale_chord`` (stereo) is fused with it (inverse variance); a scale-unobservable
         motion is re-initialised with the measured chord. A chord the truck cannot have driven from
-        ``speed_before`` within the pair is dropped (:meth:`_reachable`)."""
+        at a speed within ``speed_bounds`` (m/s, least and greatest: :meth:`_speed_bounds`) within the
+        pair is dropped (:meth:`_reachable`)."""
         if not self.config.scale.ground_plane or init.tractor_status not in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE):
             return init
         correspondences = []
@@ -526,10 +542,10 @@ class MotionInitializer:
             return init
         logger.debug("frames %d-%d: ground-plane chord %.4f +- %.4f m from %d road points (yaw sigma %.3f deg)",
                      first.frame, second.frame, measured.chord, measured.sigma, measured.inlier_count, np.degrees(yaw_sigma))
-        if speed_before is not None and not self._reachable(measured.chord, measured.sigma, abs(speed_before), interval):
-            logger.info("frames %d-%d: ground-plane chord %.2f +- %.2f m from %d road points dropped: a truck at %.1f m/s cannot "
+        if speed_bounds is not None and not self._reachable(measured.chord, measured.sigma, speed_bounds[0], interval, top_speed=speed_bounds[1]):
+            logger.info("frames %d-%d: ground-plane chord %.2f +- %.2f m from %d road points dropped: a truck at %.1f-%.1f m/s cannot "
                         "cover that in %.2f s (ransac.max_deceleration_mps2; road points on traffic or the trailer?)",
-                        first.frame, second.frame, measured.chord, measured.sigma, measured.inlier_count, abs(speed_before), interval)
+                        first.frame, second.frame, measured.chord, measured.sigma, measured.inlier_count, *speed_bounds, interval)
             return init
         chord, sigma = measured.chord, measured.sigma
         if init.scale_chord is not None:  # independent measurements of the same chord

@@ -32,7 +32,7 @@ from ampc_vo.observations import FrameObservations
 from ampc_vo.io.outputs import OutputWriter
 from ampc_vo.io.run_folder import CONFIG_FILE, TIMING_FILE, RunFolder
 from ampc_vo.rig import Rig
-from ampc_vo.backend.smoother import ArticulatedSmoother, KeyframeEstimate, MotionStatus
+from ampc_vo.backend.smoother import ArticulatedSmoother, KeyframeEstimate, MotionInit, MotionStatus
 
 logger = logging.getLogger(__name__)
 
@@ -106,6 +106,13 @@ def _with_chord_length(T_i_j: np.ndarray, chord: float) -> np.ndarray:
 _REVERSING_M = 0.01  # a body's origin moved backwards by more than this: reversing (less: at rest, forward by default)
 
 
+def _chord_measured(init: MotionInit) -> bool:
+    """Whether a keyframe pair's tractor chord was measured (a 2-point or joint chord, a standstill,
+    a ground-plane, stereo or wheel chord) rather than taken from the constant-velocity prediction."""
+    return (init.tractor_status in (MotionStatus.OK, MotionStatus.STANDSTILL) or init.scale_chord is not None
+            or init.wheel_chord is not None)
+
+
 def _velocity_of(motion: np.ndarray, dt: float) -> tuple[float, float]:
     """``(yaw rate, signed speed)`` of a body's ``motion`` (``T_i_j``) over ``dt`` seconds: the speed
     is negative when the body's origin moved backwards in its own frame (reversing); a body at rest
@@ -132,6 +139,7 @@ class OdometryPipeline:
         self.estimates: list[KeyframeEstimate] = []
         self._last_keyframe: FrameObservations | None = None
         self._velocity: np.ndarray | None = None  # last tractor motion per second: (yaw rate, signed speed; < 0 reversing)
+        self._speed_measured_at: float | None = None  # the newest keyframe whose chord was measured (time, s)
         self._trailer_velocity: tuple[float, float] | None = None
         self._hitch: float | None = None
         self._frames = 0
@@ -177,7 +185,8 @@ class OdometryPipeline:
         if wheel is not None:  # wheel odometry measures the chord: the prediction takes it
             predicted, prediction_sigma = _with_chord_length(predicted, wheel), self.config.scale.wheel_speed_sigma_m
         tractor = self.initializer.tractor(self._last_keyframe, frame, predicted, prediction_sigma if self._velocity is not None else None,
-                                           speed_before=self._speed_before, hitch=self._hitch)
+                                           speed_before=self._speed_before, hitch=self._hitch,
+                                           speed_age=self._speed_age)
         decision = self.policy.decide(tractor, elapsed)
         if not decision.is_keyframe:
             return []
@@ -187,6 +196,14 @@ class OdometryPipeline:
     def _speed_before(self) -> float | None:
         """The tractor's signed speed over the last keyframe interval (m/s; None before one is known)."""
         return float(self._velocity[1]) if self._velocity is not None else None
+
+    @property
+    def _speed_age(self) -> float:
+        """Seconds from the newest keyframe whose chord was measured to the last keyframe (0 before
+        one is known): the speed before is the constant-velocity prediction's since then."""
+        if self._speed_measured_at is None or self._last_keyframe is None:
+            return 0.0
+        return max(self._last_keyframe.timestamp - self._speed_measured_at, 0.0)
 
     def _clearly_no_keyframe(self, frame: FrameObservations, predicted: np.ndarray, elapsed: float) -> bool:
         """True when the constant-velocity prediction is far below the keyframe thresholds
@@ -210,10 +227,13 @@ class OdometryPipeline:
 
     def _add_keyframe(self, frame: FrameObservations, tractor: TractorMotion, elapsed: float) -> list[KeyframeEstimate]:
         predicted_trailer = self._predicted(elapsed, self._trailer_velocity) if self._trailer_velocity is not None else None
-        init = self.initializer.keyframe(self._last_keyframe, frame, tractor, self._hitch, predicted_trailer, speed_before=self._speed_before)
+        init = self.initializer.keyframe(self._last_keyframe, frame, tractor, self._hitch, predicted_trailer, speed_before=self._speed_before,
+                                         speed_age=self._speed_age)
         chord = self._wheel_chord(self._last_keyframe, frame)
         if chord is not None:
             init = dataclasses.replace(init, wheel_chord=chord)
+        if _chord_measured(init):
+            self._speed_measured_at = frame.timestamp
         self._statuses[init.tractor_status.value] = self._statuses.get(init.tractor_status.value, 0) + 1
         if self.smoother.keyframe_count == 0:
             self.smoother.add_keyframe(self._last_keyframe, _first_init())
@@ -405,9 +425,7 @@ class OdometryPipeline:
         )
 
 
-def _first_init():
-    from ampc_vo.backend.smoother import MotionInit
-
+def _first_init() -> MotionInit:
     return MotionInit(np.eye(4), MotionStatus.FIRST)
 
 

@@ -190,7 +190,12 @@ class GroundScaleOptions:
     and agree within ``lane_consensus_tolerance`` (relative) with the whole view's road.
     ``off_lane_slope_sigma``: prior sigma of the road's cross-slope change at the own lane's edges
     (module docstring, "Own lane"): the fitted plane estimates it per side, the calibrated plane
-    widens the chord's sigma by it.
+    widens the chord's sigma by it. ``short_chord_relative_point_sigma``: where
+    ``max_relative_point_sigma`` leaves too few road points (a short chord: a point's relative sigma
+    is its bearing sigma over its parallax, so at a stop or a drive-off few points pass), the chord
+    is measured again with this looser test, its sigma times ``short_chord_sigma_factor`` (such
+    points read the chord long by 1-3 of their sigmas; None: no second attempt). A truck braking to
+    rest or driving off changes its speed most where the smooth-speed prior cannot follow.
     """
 
     ground_z: float = 0.0
@@ -215,6 +220,8 @@ class GroundScaleOptions:
     lane_length_m: float = 40.0
     min_lane_points: int = 8
     lane_consensus_tolerance: float = 0.15
+    short_chord_relative_point_sigma: float | None = 1.0
+    short_chord_sigma_factor: float = 3.0
     off_lane_slope_sigma: float = 0.05  # change of cross-slope beyond the own lane (a crown's 2 x 2.5 %, shoulders,
                                         # crossing roads): the sigma of a chord from points beyond it (module docstring)
 
@@ -704,6 +711,29 @@ def _combine_cameras(per_camera: Sequence[PointChords], masks: Sequence[np.ndarr
 
 
 def ground_plane_chord(
+    correspondences: Sequence[tuple[Camera, np.ndarray, np.ndarray]],
+    T_i_j: np.ndarray,
+    axle_x: float,
+    options: GroundScaleOptions = GroundScaleOptions(),
+    yaw_sigma: float = 0.0,
+    driven: np.ndarray | None = None,
+) -> GroundChord:
+    """Metric chord of the axle midpoint between keyframes i and j from road points
+    (:func:`road_points_chord`), measured again from less precise road points with a wider sigma
+    where too few precise ones remain (``options.short_chord_relative_point_sigma``)."""
+    measured = road_points_chord(correspondences, T_i_j, axle_x, options, yaw_sigma, driven)
+    looser = options.short_chord_relative_point_sigma
+    if measured.status is not GroundScaleStatus.TOO_FEW_GROUND_POINTS or looser is None or looser <= options.max_relative_point_sigma:
+        return measured
+    second = road_points_chord(correspondences, T_i_j, axle_x, dataclasses.replace(options, max_relative_point_sigma=looser), yaw_sigma, driven)
+    if not second.ok:
+        return measured
+    logger.debug("short chord from %d imprecise road points: %.4f +- %.4f m (sigma x %.1f)", second.inlier_count, second.chord, second.sigma,
+                 options.short_chord_sigma_factor)
+    return dataclasses.replace(second, sigma=second.sigma * options.short_chord_sigma_factor)
+
+
+def road_points_chord(
     correspondences: Sequence[tuple[Camera, np.ndarray, np.ndarray]],
     T_i_j: np.ndarray,
     axle_x: float,

@@ -149,6 +149,33 @@ def median_parallax(groups: Sequence[Group]) -> float:
     return float(np.median(angles)) if angles.size else 0.0
 
 
+def attitude_compensated_parallax(groups: Sequence[Group], rounds: int = 3) -> np.ndarray:
+    """Each correspondence's parallax (radians, the groups' correspondences stacked) left after the
+    pitch and roll change that best explains the pair as a pure rotation: a truck at rest whose body
+    pitches or rolls on its suspension (braking to rest, the rebound after a stop) moves every
+    bearing, but not as a translation does. Small-angle least squares ``b_i = b_j + w x b_j`` with
+    ``w = (roll, pitch, 0)`` (no yaw: a truck cannot turn on the spot), refitted ``rounds`` times on
+    the better half of the correspondences (tracks on traffic, outliers). The bearings are the
+    body frame's from each camera's centre: a camera ``c`` off the body origin keeps ``|w x c| /
+    depth`` of a body rotation ``w`` (a fraction of a pixel at road depths)."""
+    bearings_i = np.concatenate([group.bearings_i for group in groups] or [np.zeros((0, 3))])
+    bearings_j = np.concatenate([group.bearings_j for group in groups] or [np.zeros((0, 3))])
+    if len(bearings_i) < 2:
+        return np.arccos(np.clip(np.sum(bearings_i * bearings_j, axis=1), -1.0, 1.0))
+    difference = bearings_i - bearings_j
+    # b_i - b_j = w x b_j = -[b_j]x w: the roll (x) and pitch (y) columns of [b_j]x (w's sign is the fit's)
+    x, y, z = bearings_j.T
+    zero = np.zeros_like(x)
+    jacobian = np.stack([np.column_stack([zero, z, -y]), np.column_stack([-z, zero, x])], axis=2)  # (N, 3, 2)
+    used = np.ones(len(bearings_i), dtype=bool)
+    residual = np.linalg.norm(difference, axis=1)
+    for _ in range(max(rounds, 1)):
+        rotation, *_ = np.linalg.lstsq(jacobian[used].reshape(-1, 2), difference[used].reshape(-1), rcond=None)
+        residual = np.linalg.norm(difference - jacobian @ rotation, axis=1)
+        used = residual <= np.median(residual)
+    return residual
+
+
 @dataclass
 class TractorMotionEstimate:
     """Result of :func:`estimate_tractor_motion`.

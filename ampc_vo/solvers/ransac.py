@@ -30,6 +30,7 @@ from ampc_vo.solvers.estimates import (
     RansacConfig,
     TractorMotionEstimate,
     as_groups,
+    attitude_compensated_parallax,
     chord_is_observable,
     median_parallax,
     parallax,
@@ -119,7 +120,9 @@ def estimate_tractor_motion(
     far on the line of motion) are left out. ``direction`` (+1 forward, -1 backward; None:
     either): the sign the chord must have when the truck could not have changed its direction
     of travel within the pair (at speed it must brake to rest first); hypotheses against it are
-    not drivable (traffic moving with the truck looks like its reverse).
+    not drivable (traffic moving with the truck looks like its reverse). Where it could have
+    stopped, a reversal against the prior with an unmeasured chord whose tracks only pitched and
+    rolled is a standstill (:func:`_unless_only_pitched`).
     """
     config = config or RansacConfig()
     rng = rng if rng is not None else np.random.default_rng(config.seed)
@@ -134,8 +137,32 @@ def estimate_tractor_motion(
             return TractorMotionEstimate(SolverStatus.TOO_FEW_POINTS, inlier_masks=empty_masks)
     planar = _estimate_planar(groups, empty_masks, axle_x, config, chord_prior, rng, moving, direction)
     if config.max_attitude_change <= 0.0 or planar.status is SolverStatus.STANDSTILL:
-        return planar
-    return _with_attitude(groups, planar, axle_x, config, chord_prior, direction)
+        estimate = planar
+    else:
+        estimate = _with_attitude(groups, planar, axle_x, config, chord_prior, direction)
+    if moving or direction is not None:
+        return estimate
+    return _unless_only_pitched(groups, estimate, config, chord_prior)
+
+
+def _unless_only_pitched(groups: Sequence[Group], estimate: TractorMotionEstimate, config: RansacConfig,
+                         chord_prior: float | None) -> TractorMotionEstimate:
+    """A standstill instead of ``estimate`` where that turns the truck's direction of travel
+    against the prediction's (``chord_prior``'s sign) without measuring its chord while the tracks
+    moved no more than a body pitching and rolling at rest explains
+    (:func:`attitude_compensated_parallax` below ``standstill_parallax``): the rebound of the
+    suspension after a stop moves every bearing by pixels, and the cheirality of a short baseline
+    then votes for either sign. A truck that could not have stopped (``moving``, a ``direction``)
+    is not asked."""
+    if estimate.status is not SolverStatus.SCALE_UNOBSERVABLE or chord_prior is None or not np.isfinite(chord_prior):
+        return estimate
+    if estimate.chord_sign * np.sign(chord_prior) >= 0.0:
+        return estimate
+    if np.median(attitude_compensated_parallax(groups)) >= config.standstill_parallax:
+        return estimate
+    logger.debug("a reversal with an unmeasured chord whose tracks only pitched and rolled: a standstill")
+    every = [group.full_mask(np.ones(len(group), dtype=bool)) for group in groups]
+    return TractorMotionEstimate(SolverStatus.STANDSTILL, 0.0, 0.0, np.eye(4), every, sum(len(group) for group in groups))
 
 
 def _with_attitude(groups: Sequence[Group], planar: TractorMotionEstimate, axle_x: float, config: RansacConfig,
@@ -144,7 +171,9 @@ def _with_attitude(groups: Sequence[Group], planar: TractorMotionEstimate, axle_
     correspondences, a motion with a pitch and roll change (:mod:`ampc_vo.solvers.attitude`) if that
     explains clearly more (``_ATTITUDE_GAIN`` times the inliers). Its chord is not taken from the
     tracks (the attitude change and the chord trade off): ``SCALE_UNOBSERVABLE`` with the prior's
-    chord, as in straight driving; without a prior of at least ``min_chord`` nothing is searched."""
+    chord, as in straight driving; without a prior of at least ``min_chord`` nothing is searched.
+    Without a ``direction`` both signs of the prior's chord are searched (the truck may have stopped
+    and changed its direction within the pair)."""
     total = sum(len(group) for group in groups)
     if total == 0 or planar.num_inliers >= config.attitude_fraction * total:
         return planar
@@ -152,13 +181,19 @@ def _with_attitude(groups: Sequence[Group], planar: TractorMotionEstimate, axle_
     if not known:  # a truck predicted at rest: a fixed chord near zero fits any still tracks (traffic, its own body)
         return planar
     measured = planar.status in (SolverStatus.OK, SolverStatus.SCALE_UNOBSERVABLE)
-    sign = direction if direction is not None else planar.chord_sign if measured else float(np.sign(chord_prior))
-    chord = sign * abs(float(chord_prior))
-    seeds = [(planar.yaw_change if np.isfinite(planar.yaw_change) else 0.0, chord)]
-    if np.isfinite(planar.yaw_change) and planar.yaw_change != 0.0:
-        seeds.append((0.0, chord))
-    found = estimate_attitude_motion(groups, seeds, axle_x, config.sampson_threshold, config.max_attitude_change, fix_chord=True,
-                                     iterations=config.refine_iterations)
+    likely = direction if direction is not None else planar.chord_sign if measured else float(np.sign(chord_prior))
+    # where the truck could have changed its direction of travel, the tracks decide it: a drive-off
+    # after reversing, predicted backwards, is searched forwards too (the likely sign keeps ties)
+    found, sign = None, likely
+    for candidate in ([likely] if direction is not None else [likely, -likely]):
+        chord = candidate * abs(float(chord_prior))
+        seeds = [(planar.yaw_change if np.isfinite(planar.yaw_change) else 0.0, chord)]
+        if np.isfinite(planar.yaw_change) and planar.yaw_change != 0.0:
+            seeds.append((0.0, chord))
+        attempt = estimate_attitude_motion(groups, seeds, axle_x, config.sampson_threshold, config.max_attitude_change, fix_chord=True,
+                                           iterations=config.refine_iterations)
+        if attempt is not None and (found is None or np.sum(attempt.inliers) > np.sum(found.inliers)):
+            found, sign = attempt, candidate
     if found is None or np.sum(found.inliers) < max(_least_inliers(groups, config), _ATTITUDE_GAIN * planar.num_inliers):
         return planar
     logger.debug("attitude change in a pair: pitch %.2f deg, roll %.2f deg, %d of %d inliers (planar: %d)", np.degrees(found.pitch),

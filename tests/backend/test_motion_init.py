@@ -189,6 +189,34 @@ def test_a_refused_standstill_is_taken_once_the_truck_could_have_stopped_since()
     assert initializer.tractor(*_at(still, 12.0, 12.1), predicted, speed_before=3.2).status is not MotionStatus.STANDSTILL
 
 
+def test_a_speed_not_measured_for_a_while_lets_the_truck_stop(monkeypatch) -> None:
+    """The speed before (3.2 m/s) was last measured 0.5 s before the pair and carried on by the
+    prediction since (pairs without a measured chord): braking at ``ransac.max_deceleration_mps2``
+    (8) the truck may have come to rest meanwhile, so still tracks are a standstill at once; the
+    same speed measured just before the pair refuses it. The ground chord's bounds widen the same
+    way: a 0.05 m chord at an unmeasured 3.2 m/s is kept, at a measured one dropped."""
+    import dataclasses
+
+    from ampc_vo.scale.ground import GroundChord, GroundScaleStatus
+
+    still = _at(_pair(0.0, 0.0, np.random.default_rng(4)), 10.0, 10.1)
+    predicted = make_pose(*ackermann_motion(0.0, 0.32, RIG.axle_x("tractor")))
+    fresh = MotionInitializer(RIG, VoConfig(mode="tractor_only")).tractor(*still, predicted, speed_before=3.2, speed_age=0.0)
+    assert fresh.status is not MotionStatus.STANDSTILL
+    stale = MotionInitializer(RIG, VoConfig(mode="tractor_only")).tractor(*still, predicted, speed_before=3.2, speed_age=0.5)
+    assert stale.status is MotionStatus.STANDSTILL
+    initializer = MotionInitializer(RIG, VoConfig(mode="tractor_only"))
+    assert initializer._speed_bounds(-3.2, 0.25) == pytest.approx((1.2, 5.2))
+    assert initializer._speed_bounds(3.2, 1.0) == (0.0, pytest.approx(11.2))
+    monkeypatch.setattr("ampc_vo.backend.motion_init.ground_plane_chord",
+                        lambda *args, **kwargs: GroundChord(GroundScaleStatus.OK, 0.05, 0.005, (np.ones(9, bool),), 9))
+    first, second = (dataclasses.replace(frame, cameras={"front": frame.cameras["front"]}) for frame in _pair(np.radians(2.0), 0.5, np.random.default_rng(5)))
+    tractor = initializer.tractor(first, second, predicted, speed_before=3.2)
+    assert tractor.status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE)
+    assert initializer.keyframe(first, second, tractor, None, speed_before=3.2).scale_chord is None
+    assert initializer.keyframe(first, second, tractor, None, speed_before=3.2, speed_age=0.5).scale_chord == pytest.approx((0.05, 0.005))
+
+
 def _still_and_creeping(rig, creep_m: float, noise_px: float, rng: np.random.Generator) -> tuple[FrameObservations, FrameObservations]:
     """The tractor cameras of ``rig`` see a static world 5-40 m around the truck, which moved
     ``creep_m`` forward between the views, with ``noise_px`` of pixel noise per observation."""
@@ -245,3 +273,19 @@ def test_the_path_driven_is_the_keyframe_motions_chained_backwards() -> None:
     assert np.allclose(steps[:3], 2.0, atol=1e-6)
     assert np.sum(steps) == pytest.approx(VoConfig().scale.ground_lane_length_m)
     assert np.all(path[1:, 0] < 0.0) and np.all(path[1:, 1] > 0.0)  # behind, and to the left
+
+
+def test_a_chord_counts_as_measured_only_when_something_measured_it() -> None:
+    """The speed's age (``OdometryPipeline._speed_age``) restarts at a keyframe whose chord was
+    measured: by the 2-point or joint RANSAC (ok), a standstill, the ground plane or stereo
+    (``scale_chord``) or the wheels; a scale-unobservable pair that took the prediction's chord did
+    not measure it."""
+    from ampc_vo.backend.pipeline import _chord_measured
+    from ampc_vo.backend.smoother import MotionInit
+
+    assert _chord_measured(MotionInit(np.eye(4), MotionStatus.OK))
+    assert _chord_measured(MotionInit(np.eye(4), MotionStatus.STANDSTILL))
+    assert not _chord_measured(MotionInit(np.eye(4), MotionStatus.SCALE_UNOBSERVABLE))
+    assert not _chord_measured(MotionInit(np.eye(4), MotionStatus.TOO_FEW_TRACKS))
+    assert _chord_measured(MotionInit(np.eye(4), MotionStatus.SCALE_UNOBSERVABLE, scale_chord=(1.2, 0.02)))
+    assert _chord_measured(MotionInit(np.eye(4), MotionStatus.TOO_FEW_TRACKS, wheel_chord=1.2))

@@ -530,3 +530,21 @@ def test_capture_times_of_rolling_shutter_rows_are_taken_into_account() -> None:
         assert timed.chord == pytest.approx(speed * interval, rel=0.01)
         fitted = ground_plane_chord([(camera, views[0][0][seen], views[1][0][seen], time_scale)], given, AXLE_X, OPTIONS)
         assert fitted.ok and fitted.chord == pytest.approx(speed * interval, rel=0.02)  # the fitted plane's re-evaluations too
+
+
+@pytest.mark.parametrize("seed, true_chord", [(0, 0.15), (2, 0.1), (5, 0.1)])
+def test_a_short_chord_is_measured_from_imprecise_road_points(seed: int, true_chord: float) -> None:
+    """A truck creeping 0.1-0.15 m (braking to rest, driving off): each road point's chord sigma
+    is its bearing sigma over its small parallax, so too few pass ``max_relative_point_sigma`` and
+    the strict test measures nothing; the second attempt with the looser test measures the chord,
+    with a sigma three times its statistical one that covers the truth (such points read long)."""
+    rng = np.random.default_rng(seed)
+    points = np.concatenate([_road_points(rng, 40), _facade_points(rng, 100)])
+    bearings_i, bearings_j = _observe(FRONT, points, _motion(0.0, true_chord), rng, outliers=0.05)
+    correspondences = [(FRONT, bearings_i, bearings_j)]
+    strict = ground_plane_chord(correspondences, _motion(0.0, 1.0), AXLE_X, dataclasses.replace(OPTIONS, short_chord_relative_point_sigma=None))
+    assert strict.status is GroundScaleStatus.TOO_FEW_GROUND_POINTS
+    short = ground_plane_chord(correspondences, _motion(0.0, 1.0), AXLE_X, OPTIONS)
+    assert short.ok and abs(short.chord - true_chord) < 1.5 * short.sigma and short.sigma < true_chord
+    narrow = dataclasses.replace(OPTIONS, short_chord_sigma_factor=1.0)
+    assert ground_plane_chord(correspondences, _motion(0.0, 1.0), AXLE_X, narrow).sigma == pytest.approx(short.sigma / 3.0)

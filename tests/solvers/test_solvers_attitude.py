@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from ampc_vo.geometry import make_pose
 from ampc_vo.solvers import RansacConfig, SolverStatus, estimate_tractor_motion
 from ampc_vo.solvers.attitude import attitude_motion, attitude_rotations, estimate_attitude_motion
-from ampc_vo.solvers.estimates import as_groups
+from ampc_vo.solvers.estimates import as_groups, attitude_compensated_parallax, median_parallax
 
 AXLE_X = -0.3
 # a cab camera and two mirror cameras looking back along the sides (tractor frame, metres)
@@ -110,3 +110,54 @@ def test_no_attitude_search_for_a_truck_predicted_at_rest() -> None:
     at_rest = estimate_tractor_motion(groups, AXLE_X, config, chord_prior=0.001)
     assert at_rest.attitude == (0.0, 0.0)
     assert estimate_tractor_motion(groups, AXLE_X, config, chord_prior=2.0).attitude != (0.0, 0.0)
+
+
+def test_driving_off_after_reversing_takes_its_direction_from_the_tracks() -> None:
+    """A truck that reversed, stopped and creeps off forwards (0.3 m) while its body pitches back
+    by 0.8 degree: the planar RANSAC takes the backward chord of the prediction (it explains a few
+    tracks either way), but the truck could have stopped within the pair (no ``direction``), so
+    the attitude search tries both signs of the chord and the tracks decide."""
+    rng = np.random.default_rng(3)
+    yaw, chord = np.radians(0.3), 0.3
+    rotation, translation = attitude_motion(yaw, chord, np.radians(0.8), 0.0, AXLE_X)
+    groups = _correspondences(rng, make_pose(rotation, translation))
+    total = sum(len(group[0]) for group in groups)
+    threshold = 2.0 / FOCAL_PX
+    planar = estimate_tractor_motion(groups, AXLE_X, RansacConfig(sampson_threshold=threshold), chord_prior=-chord)
+    assert planar.chord_sign < 0.0 and planar.num_inliers < 0.2 * total  # the planar model cannot tell
+    config = RansacConfig(sampson_threshold=threshold, max_attitude_change=np.radians(2.0), attitude_fraction=0.6)
+    found = estimate_tractor_motion(groups, AXLE_X, config, chord_prior=-chord)
+    assert found.status is SolverStatus.SCALE_UNOBSERVABLE and found.chord == pytest.approx(chord)
+    assert found.num_inliers > 0.8 * total
+    np.testing.assert_allclose(found.T_i_j[:3, 3], translation, atol=0.01)
+    held = estimate_tractor_motion(groups, AXLE_X, config, chord_prior=-chord, direction=-1.0)  # at speed: no forward search
+    assert held.chord_sign < 0.0 and held.num_inliers < 0.2 * total
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_truck_at_rest_whose_body_pitches_back_is_a_standstill(seed: int) -> None:
+    """The suspension's rebound after a stop: the body pitches by 0.3 degree at rest, which moves
+    the bearings by 2.6 px (above the standstill parallax of 1.5 px). The planar RANSAC cannot
+    measure a chord and its cheirality votes for reversing; the tracks move no more than a pitch
+    explains (about the 0.5 px noise once it is taken out), so the truck predicted forwards at a
+    speed it could stop from is at rest, not reversing at the prediction's speed."""
+    rng = np.random.default_rng(seed)
+    groups = _correspondences(rng, make_pose(attitude_rotations(np.radians(0.3), 0.0), np.zeros(3)))
+    stacked = as_groups(groups)
+    assert median_parallax(stacked) * FOCAL_PX > 2.0
+    assert np.median(attitude_compensated_parallax(stacked)) * FOCAL_PX < 1.2
+    config = RansacConfig(sampson_threshold=2.0 / FOCAL_PX, standstill_parallax=1.5 / FOCAL_PX, max_attitude_change=np.radians(2.0))
+    at_rest = estimate_tractor_motion(groups, AXLE_X, config, chord_prior=0.3)
+    assert at_rest.status is SolverStatus.STANDSTILL
+
+
+def test_the_attitude_compensated_parallax_keeps_what_a_translation_moved() -> None:
+    """Creeping 0.08 m straight ahead: the pitch and roll fit takes out almost nothing (within
+    10 %) of the translation's parallax, and a pure pitch and roll of the body leaves a fraction
+    of a pixel (the cameras sit 1-1.5 m from the body origin: ``|w x c| / depth``)."""
+    rng = np.random.default_rng(4)
+    creeping = as_groups(_correspondences(rng, make_pose(*attitude_motion(0.0, 0.08, 0.0, 0.0, AXLE_X)), outliers=0.0))
+    raw, compensated = median_parallax(creeping), float(np.median(attitude_compensated_parallax(creeping)))
+    assert compensated == pytest.approx(raw, rel=0.1)
+    pitched = as_groups(_correspondences(rng, make_pose(attitude_rotations(np.radians(0.5), np.radians(-0.3)), np.zeros(3)), noise_px=0.0))
+    assert np.median(attitude_compensated_parallax(pitched)) * FOCAL_PX < 0.5
