@@ -51,6 +51,9 @@ _BOX_MARGIN_M = 0.05
 _DRIVEN_MOTIONS = 64
 _HITCH_MARGIN = float(np.radians(2.0))
 _UNKNOWN_HITCH_MARGIN = float(np.radians(10.0))
+# yaw change searched for the stereo motion of a pair without a predicted motion (a sequence that starts
+# at speed, perhaps in a turn: a road vehicle turns at up to ~1 rad/s, 10 deg in 0.17 s; stereo_motion)
+_STEREO_YAW_SEARCH = float(np.radians(10.0))
 
 
 @dataclass(frozen=True)
@@ -260,7 +263,7 @@ class MotionInitializer:
         if shared >= self.config.keyframes.min_tracks:
             # an overlapping camera pair (scale.stereo_chord) gives metric yaw and chord directly from
             # the constant-velocity guess; the 2-point RANSAC (about 2/3 of the per-frame time) is skipped
-            stereo = self._stereo_motion(first, second, predicted)
+            stereo = self._stereo_motion(first, second, predicted, guessed=prediction_sigma is None)
             if stereo is not None:
                 return TractorMotion(stereo.T_i_j, MotionStatus.OK, self._stereo_estimate(pairs, stereo), shared, stereo.as_scale_chord())
         # signed: the direction of travel of the prediction (used where the pair's chord is not measured)
@@ -362,13 +365,15 @@ class MotionInitializer:
         most = ((speed if top_speed is None else top_speed) * dt + 0.5 * rate * dt**2) * _SPEED_SLACK
         return least - 3.0 * sigma <= abs(chord) <= most + 3.0 * sigma
 
-    def _stereo_motion(self, first: FrameObservations, second: FrameObservations, T_guess: np.ndarray) -> StereoMotion | None:
+    def _stereo_motion(self, first: FrameObservations, second: FrameObservations, T_guess: np.ndarray,
+                       guessed: bool = False) -> StereoMotion | None:
         """Tractor yaw change and axle chord from stereo points (:func:`ampc_vo.scale.stereo.stereo_motion`)
         when ``scale.stereo_chord`` is on, the measurement succeeds and the tractor moved (the 2-point
         solver's standstill or unobservable scale in straight driving are overruled), else ``None``."""
         if not self.config.scale.stereo_chord:
             return None
-        measured = stereo_motion(self.rig, "tractor", first, second, T_guess, self.rig.axle_x("tractor"), self._stereo_options)
+        measured = stereo_motion(self.rig, "tractor", first, second, T_guess, self.rig.axle_x("tractor"), self._stereo_options,
+                                 yaw_search=_STEREO_YAW_SEARCH if guessed else 0.0)
         if not measured.ok:
             logger.debug("frames %d-%d: no stereo motion (%s)", first.frame, second.frame, measured.status.value)
             return None

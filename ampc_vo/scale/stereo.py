@@ -42,6 +42,9 @@ Gauss-Newton over the Ackermann parameters (yaw change, chord; DESIGN 2 (NH)) mi
 angular residuals ``g x (X' - c) / |X' - c|`` of all inlier observations (``X'`` the point moved
 into the observing view), each divided by its sigma (bearing noise plus the point's depth error
 projected into the view). A planar stereo PnP with the Ackermann constraint: metric yaw and chord.
+Without a predicted motion (the first pair of a sequence that starts at speed) the yaw is first
+searched on a grid for the consensus chord with the most inliers: from a straight guess, a car
+already turning converges to another basin (DESIGN 11, "Metric scale beyond the paper").
 """
 from __future__ import annotations
 
@@ -328,9 +331,14 @@ def _angular_residuals(sightings: _Sightings, yaw_change: float, chord: float, a
 
 
 def stereo_motion(rig: Rig, body: str, first: FrameObservations, second: FrameObservations, T_guess: np.ndarray, axle_x: float,
-                  options: StereoScaleOptions = StereoScaleOptions(), iterations: int = 5) -> StereoMotion:
+                  options: StereoScaleOptions = StereoScaleOptions(), iterations: int = 5, yaw_search: float = 0.0) -> StereoMotion:
     """Ackermann yaw change and axle chord of ``body`` between two views from stereo points
-    (module docstring, "Yaw and chord together"); ``T_guess`` gives the initial yaw and direction."""
+    (module docstring, "Yaw and chord together"); ``T_guess`` gives the initial yaw and direction.
+    ``yaw_search`` (radians): where the guess's yaw is not a prediction (the first pair of a
+    sequence that starts at speed, perhaps in a turn), the yaw within +- ``yaw_search`` of it whose
+    consensus chord has the most inliers starts the refinement (:func:`_searched_guess`)."""
+    if yaw_search > 0.0:
+        T_guess = _searched_guess(rig, body, first, second, T_guess, axle_x, options, yaw_search)
     guess = stereo_chord(rig, body, first, second, T_guess, axle_x, options)
     if not guess.ok:
         return StereoMotion(guess.status)
@@ -374,3 +382,26 @@ def stereo_motion(rig: Rig, body: str, first: FrameObservations, second: FrameOb
     T_i_j = np.eye(4)
     T_i_j[:3, :3], T_i_j[:3, 3] = ackermann_motion(yaw_change, chord, axle_x)
     return StereoMotion(StereoScaleStatus.OK, yaw_change, chord, sigma, T_i_j, used)
+
+
+_YAW_SEARCH_STEP = np.radians(0.5)  # finer than the yaw basin of the consensus chord (side points' chords move ~2 %/0.1 deg)
+
+
+def _searched_guess(rig: Rig, body: str, first: FrameObservations, second: FrameObservations, T_guess: np.ndarray, axle_x: float,
+                    options: StereoScaleOptions, yaw_search: float) -> np.ndarray:
+    """The Ackermann motion (unit chord, the guess's direction of travel) whose yaw change, within
+    ``yaw_search`` of the guess's in steps of :data:`_YAW_SEARCH_STEP`, gives the consensus chord
+    (:func:`stereo_chord`) the most inliers: a wrong yaw spreads the per-point chords of points
+    off the motion's direction (module docstring (S)), so the consensus then holds few of them.
+    ``T_guess`` where no yaw gives a chord."""
+    yaw_guess = float(np.arctan2(T_guess[1, 0], T_guess[0, 0]))
+    direction = axle_chord_direction(T_guess, axle_x)
+    sign = 1.0 if direction is None or float(direction[0]) >= 0.0 else -1.0
+    best_count, best = 0, T_guess
+    for yaw_change in yaw_guess + np.arange(-yaw_search, yaw_search + 1e-12, _YAW_SEARCH_STEP):
+        candidate = np.eye(4)
+        candidate[:3, :3], candidate[:3, 3] = ackermann_motion(yaw_change, sign, axle_x)
+        measured = stereo_chord(rig, body, first, second, candidate, axle_x, options)
+        if measured.ok and measured.inliers > best_count:
+            best_count, best = measured.inliers, candidate
+    return best

@@ -91,3 +91,23 @@ def test_no_stereo_points_and_no_motion_are_reported():
     assert stereo_chord(RIG, "tractor", *only_left, T_i_j, AXLE_X).status is StereoScaleStatus.NO_STEREO_POINTS
     assert stereo_chord(RIG, "tractor", first, second, np.eye(4), AXLE_X).status is StereoScaleStatus.NO_MOTION_DIRECTION
     assert not stereo_motion(RIG, "tractor", *only_left, T_i_j, AXLE_X).ok
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_sequence_starting_in_a_turn_finds_its_yaw_by_search(seed):
+    """The first pair of a sequence that starts at speed in a turn (KITTI's motorway ramp: 2.6 deg per
+    frame) has no predicted motion, only the straight bootstrap guess; with the road points on one
+    side, the refinement from that guess lands in another basin (chords of 5-20 m, either sign),
+    the yaw search (``yaw_search``) in the right one."""
+    rng = np.random.default_rng(seed)
+    points = np.column_stack([rng.uniform(4.0, 40.0, 400), rng.uniform(2.0, 15.0, 400), rng.uniform(-1.6, 4.0, 400)])
+    yaw_change, chord = np.radians(6.0), 1.0
+    T_i_j = make_pose(*ackermann_motion(yaw_change, chord, AXLE_X))
+    first, second = observe(np.eye(4), points, 0, rng, 0.5, 0.2), observe(T_i_j, points, 1, rng, 0.5, 0.2)
+    straight_guess = make_pose(np.eye(3), np.array([0.1, 0.0, 0.0]))
+    unsearched = stereo_motion(RIG, "tractor", first, second, straight_guess, AXLE_X)
+    assert not unsearched.ok or abs(unsearched.chord - chord) > 0.5 * chord
+    searched = stereo_motion(RIG, "tractor", first, second, straight_guess, AXLE_X, yaw_search=np.radians(10.0))
+    assert searched.ok
+    assert abs(searched.chord - chord) < 0.02 * chord
+    assert abs(searched.yaw_change - yaw_change) < np.radians(0.05)
