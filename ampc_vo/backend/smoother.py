@@ -999,13 +999,27 @@ class ArticulatedSmoother:
                 del self._window[index]
 
     def _compute_marginals(self, k: int) -> gtsam.Marginals | None:
-        """``gtsam.Marginals`` of the current window (DESIGN section 3), None if disabled or singular."""
+        """``gtsam.Marginals`` of the current window (DESIGN section 3), None if disabled or singular.
+
+        Where the Cholesky factorisation fails, the window is factorised again with its position and
+        heading pinned (:func:`_with_gauge_anchor`): the marginalised prior anchors them only weakly,
+        and over a long, fast window that leaves a condition number near 1e11 (motorway at 29 m/s:
+        eigenvalues 3e-5 for the window's common translation against 8e6), on which GTSAM's
+        elimination met a non-positive pivot. The sigmas read here (the hitch angle, the wheel
+        scale) are of relative quantities; the anchor moves them by 0.15 % (tests/backend), where
+        the last sigma was kept before (30 keyframes of a 29 m/s route)."""
         if not self.joint or not self.config.smoother.marginals:
             return None
+        graph = self._smoother.getFactors()
         try:
-            return gtsam.Marginals(self._smoother.getFactors(), self._estimate)
+            return gtsam.Marginals(graph, self._estimate)
         except RuntimeError as error:
-            logger.warning("keyframe %d: marginal covariance not available (%s): the last hitch sigma is kept", k, first_line(error))
+            failure = first_line(error)
+        try:
+            return gtsam.Marginals(_with_gauge_anchor(graph.linearize(self._estimate), self._estimate), self._estimate)
+        except RuntimeError as error:
+            logger.warning("keyframe %d: marginal covariance not available (%s; %s with the window's position pinned): the last hitch "
+                           "sigma is kept", k, failure, first_line(error))
             return None
 
     def _marginal_sigma(self, key: int) -> float | None:
@@ -1094,3 +1108,16 @@ class ArticulatedSmoother:
         else:
             message = messages.get(status, status.value)
         logger.warning("frame %d: %s %s", keyframe.frame, body, message)
+
+
+_GAUGE_SIGMA = 1.0  # m and rad: the pin of _with_gauge_anchor, far looser than any relative constraint in a window
+
+
+def _with_gauge_anchor(linear: gtsam.GaussianFactorGraph, values: gtsam.Values) -> gtsam.GaussianFactorGraph:
+    """``linear`` (the window linearised at ``values``) with a prior of :data:`_GAUGE_SIGMA` on the
+    oldest tractor pose's tangent space: it pins the window's absolute position and attitude, which
+    only the marginalised prior anchors, and leaves the marginals of relative quantities (the hitch
+    angle) all but unchanged (``ArticulatedSmoother._compute_marginals``)."""
+    oldest = min(key for key in values.keys() if gtsam.Symbol(key).chr() == ord("x"))
+    linear.push_back(gtsam.JacobianFactor(oldest, np.eye(6), np.zeros(6), gtsam.noiseModel.Isotropic.Sigma(6, _GAUGE_SIGMA)))
+    return linear
