@@ -239,7 +239,16 @@ def stereo_chord(rig: Rig, body: str, first: FrameObservations, second: FrameObs
     landmarks triangulated within each view (module docstring)."""
     if axle_chord_direction(T_i_j, axle_x) is None:
         return StereoChord(StereoScaleStatus.NO_MOTION_DIRECTION)
-    points_first, points_second = stereo_points(rig, body, first, options), stereo_points(rig, body, second, options)
+    return _chord_of_points(rig, body, stereo_points(rig, body, first, options), stereo_points(rig, body, second, options), first, second,
+                            T_i_j, axle_x, options)
+
+
+def _chord_of_points(rig: Rig, body: str, points_first: StereoPoints, points_second: StereoPoints, first: FrameObservations,
+                     second: FrameObservations, T_i_j: np.ndarray, axle_x: float, options: StereoScaleOptions) -> StereoChord:
+    """:func:`stereo_chord` with the views' stereo points already triangulated (``points_first``,
+    ``points_second``: :func:`stereo_points` of ``first`` and ``second``)."""
+    if axle_chord_direction(T_i_j, axle_x) is None:
+        return StereoChord(StereoScaleStatus.NO_MOTION_DIRECTION)
     if len(points_first) == 0 and len(points_second) == 0:
         return StereoChord(StereoScaleStatus.NO_STEREO_POINTS)
     forward = point_chords(rig, body, points_first, second, T_i_j, axle_x, options)
@@ -304,9 +313,10 @@ def _sightings(rig: Rig, body: str, points: StereoPoints, other: FrameObservatio
     return parts
 
 
-def _all_sightings(rig: Rig, body: str, first: FrameObservations, second: FrameObservations, options: StereoScaleOptions) -> _Sightings | None:
-    parts = _sightings(rig, body, stereo_points(rig, body, first, options), second, False, options)
-    parts += _sightings(rig, body, stereo_points(rig, body, second, options), first, True, options)
+def _all_sightings(rig: Rig, body: str, points_first: StereoPoints, points_second: StereoPoints, first: FrameObservations,
+                   second: FrameObservations, options: StereoScaleOptions) -> _Sightings | None:
+    parts = _sightings(rig, body, points_first, second, False, options)
+    parts += _sightings(rig, body, points_second, first, True, options)
     if not parts:
         return None
     return _Sightings(*(np.concatenate([part[index] for part in parts]) for index in range(7)))
@@ -337,12 +347,15 @@ def stereo_motion(rig: Rig, body: str, first: FrameObservations, second: FrameOb
     ``yaw_search`` (radians): where the guess's yaw is not a prediction (the first pair of a
     sequence that starts at speed, perhaps in a turn), the yaw within +- ``yaw_search`` of it whose
     consensus chord has the most inliers starts the refinement (:func:`_searched_guess`)."""
+    if axle_chord_direction(T_guess, axle_x) is None:
+        return StereoMotion(StereoScaleStatus.NO_MOTION_DIRECTION)
+    points = stereo_points(rig, body, first, options), stereo_points(rig, body, second, options)   # each view triangulated once
     if yaw_search > 0.0:
-        T_guess = _searched_guess(rig, body, first, second, T_guess, axle_x, options, yaw_search)
-    guess = stereo_chord(rig, body, first, second, T_guess, axle_x, options)
+        T_guess = _searched_guess(rig, body, points, first, second, T_guess, axle_x, options, yaw_search)
+    guess = _chord_of_points(rig, body, *points, first, second, T_guess, axle_x, options)
     if not guess.ok:
         return StereoMotion(guess.status)
-    sightings = _all_sightings(rig, body, first, second, options)
+    sightings = _all_sightings(rig, body, *points, first, second, options)
     yaw_change = float(np.arctan2(T_guess[1, 0], T_guess[0, 0]))
     direction = axle_chord_direction(T_guess, axle_x)
     heading = np.array([np.cos(0.5 * yaw_change), np.sin(0.5 * yaw_change), 0.0])
@@ -387,13 +400,13 @@ def stereo_motion(rig: Rig, body: str, first: FrameObservations, second: FrameOb
 _YAW_SEARCH_STEP = np.radians(0.5)  # finer than the yaw basin of the consensus chord (side points' chords move ~2 %/0.1 deg)
 
 
-def _searched_guess(rig: Rig, body: str, first: FrameObservations, second: FrameObservations, T_guess: np.ndarray, axle_x: float,
-                    options: StereoScaleOptions, yaw_search: float) -> np.ndarray:
+def _searched_guess(rig: Rig, body: str, points: tuple[StereoPoints, StereoPoints], first: FrameObservations, second: FrameObservations,
+                    T_guess: np.ndarray, axle_x: float, options: StereoScaleOptions, yaw_search: float) -> np.ndarray:
     """The Ackermann motion (unit chord, the guess's direction of travel) whose yaw change, within
     ``yaw_search`` of the guess's in steps of :data:`_YAW_SEARCH_STEP`, gives the consensus chord
-    (:func:`stereo_chord`) the most inliers: a wrong yaw spreads the per-point chords of points
-    off the motion's direction (module docstring (S)), so the consensus then holds few of them.
-    ``T_guess`` where no yaw gives a chord."""
+    (:func:`stereo_chord`; ``points``: both views' stereo points) the most inliers: a wrong yaw
+    spreads the per-point chords of points off the motion's direction (module docstring (S)), so
+    the consensus then holds few of them. ``T_guess`` where no yaw gives a chord."""
     yaw_guess = float(np.arctan2(T_guess[1, 0], T_guess[0, 0]))
     direction = axle_chord_direction(T_guess, axle_x)
     sign = 1.0 if direction is None or float(direction[0]) >= 0.0 else -1.0
@@ -401,7 +414,7 @@ def _searched_guess(rig: Rig, body: str, first: FrameObservations, second: Frame
     for yaw_change in yaw_guess + np.arange(-yaw_search, yaw_search + 1e-12, _YAW_SEARCH_STEP):
         candidate = np.eye(4)
         candidate[:3, :3], candidate[:3, 3] = ackermann_motion(yaw_change, sign, axle_x)
-        measured = stereo_chord(rig, body, first, second, candidate, axle_x, options)
+        measured = _chord_of_points(rig, body, *points, first, second, candidate, axle_x, options)
         if measured.ok and measured.inliers > best_count:
             best_count, best = measured.inliers, candidate
     return best

@@ -161,7 +161,7 @@ def attitude_compensated_parallax(groups: Sequence[Group], rounds: int = 3) -> n
     bearings_i = np.concatenate([group.bearings_i for group in groups] or [np.zeros((0, 3))])
     bearings_j = np.concatenate([group.bearings_j for group in groups] or [np.zeros((0, 3))])
     if len(bearings_i) < 2:
-        return np.arccos(np.clip(np.sum(bearings_i * bearings_j, axis=1), -1.0, 1.0))
+        return np.concatenate([parallax(group) for group in groups] or [np.zeros(0)])
     difference = bearings_i - bearings_j
     # b_i - b_j = w x b_j = -[b_j]x w: the roll (x) and pitch (y) columns of [b_j]x (w's sign is the fit's)
     x, y, z = bearings_j.T

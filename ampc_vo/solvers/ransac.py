@@ -161,6 +161,11 @@ def _unless_only_pitched(groups: Sequence[Group], estimate: TractorMotionEstimat
     if np.median(attitude_compensated_parallax(groups)) >= config.standstill_parallax:
         return estimate
     logger.debug("a reversal with an unmeasured chord whose tracks only pitched and rolled: a standstill")
+    return _standstill(groups)
+
+
+def _standstill(groups: Sequence[Group]) -> TractorMotionEstimate:
+    """A standstill (no motion) with every correspondence of ``groups`` an inlier."""
     every = [group.full_mask(np.ones(len(group), dtype=bool)) for group in groups]
     return TractorMotionEstimate(SolverStatus.STANDSTILL, 0.0, 0.0, np.eye(4), every, sum(len(group) for group in groups))
 
@@ -209,10 +214,8 @@ def _estimate_planar(groups: Sequence[Group], empty_masks: list[np.ndarray], axl
                      rng: np.random.Generator, moving: bool, direction: float | None) -> TractorMotionEstimate:
     """The planar motion (``R = Rz(phi)``) of :func:`estimate_tractor_motion` (``groups`` already
     without the still correspondences when ``moving``)."""
-    total = sum(len(g) for g in groups)
     if not moving and median_parallax(groups) < config.standstill_parallax:
-        every = [g.full_mask(np.ones(len(g), dtype=bool)) for g in groups]
-        return TractorMotionEstimate(SolverStatus.STANDSTILL, 0.0, 0.0, np.eye(4), every, total)
+        return _standstill(groups)
     bearings_i, bearings_j, centers = _stack(groups)
     scale_capable = np.abs(centers[:, 0] - axle_x) > config.min_camera_axle_offset
     if not np.any(scale_capable):
