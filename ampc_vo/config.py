@@ -270,6 +270,10 @@ class SmootherConfig:
     lm_max_iterations: int | None = None  # None: 10 (VoConfig.lm_iterations); LM stops earlier at lm_relative_error_tol
     lm_lambda_initial: float = 1.0
     lm_relative_error_tol: float = 1e-4
+    # an epipolar factor whose keyframe pairs' relative motions moved less than this (rad; translation per
+    # metre of chord) since its last full evaluation gives its Gauss-Newton model there (iSAM2's fluid
+    # relinearisation; 1e-4 is ~0.05 px at 500 px focal length; 0: every evaluation in full; DESIGN 11)
+    relinearize_threshold: float = 1e-4
     marginals: bool = True
 
     def validate(self, where: str) -> None:
@@ -294,6 +298,7 @@ class SmootherConfig:
         _at_least(self.max_window_tracks_per_camera, 2, where + "max_window_tracks_per_camera")
         _at_least(self.max_pair_gap, 1, where + "max_pair_gap")
         _at_least(self.camera_mount_sigma_deg, 0.0, where + "camera_mount_sigma_deg")
+        _at_least(self.relinearize_threshold, 0.0, where + "relinearize_threshold")
         _at_least(self.camera_mount_sigma_deg_per_mps, 0.0, where + "camera_mount_sigma_deg_per_mps")
 
 

@@ -818,7 +818,8 @@ class ArticulatedSmoother:
 
         mount_sigmas = [mount for _, _, mount in blocks]  # all > 0 (moving pairs) unless both mount keys are 0
         factor = StackedEpipolarFactor([block for block, _, _ in blocks], [sigma for _, sigma, _ in blocks], self.config.smoother.huber_k,
-                                       mount_sigmas=mount_sigmas if min(mount_sigmas) > 0.0 else None)
+                                       mount_sigmas=mount_sigmas if min(mount_sigmas) > 0.0 else None,
+                                       relinearize_threshold=self.config.smoother.relinearize_threshold)
         pending.graph.add(factor)
         pending.residuals += len(factor)
         return factor

@@ -331,6 +331,60 @@ def test_stacked_factor_gradient_matches_numerical_derivative_of_its_error():
     _assert_gradient_matches_numerical(factor, values, poses)
 
 
+def _moved(poses, steps):
+    """Each pose times ``Exp(step)`` (right perturbation, GTSAM's retract)."""
+    return [pose.retract(np.asarray(step, dtype=float)) for pose, step in zip(poses, steps)]
+
+
+def test_stacked_factor_relinearisation_gives_its_gauss_newton_model_below_the_threshold():
+    """With ``relinearize_threshold``: at a point whose keyframe pairs moved less than it, the factor
+    returns the linear model of its last full evaluation (``r0 + J0 xi``: exactly what
+    ``linearize`` at that evaluation predicts), its cost within second order of the exact one; a
+    motion of the whole window leaves it at ``r0``; beyond the threshold it is evaluated anew,
+    bitwise as a factor without the threshold."""
+    from factors import StackedEpipolarFactor
+
+    poses, _, blocks = _stacked_scenario(seed=9)
+    mounts = [np.radians(0.05), np.radians(0.1), np.radians(0.2), np.radians(0.1)]
+    exact = StackedEpipolarFactor(blocks, SIGMA, huber_k=1.345, mount_sigmas=mounts)
+    fluid = StackedEpipolarFactor(blocks, SIGMA, huber_k=1.345, mount_sigmas=mounts, relinearize_threshold=1e-4)
+    values = _values(*poses)
+    r0 = fluid.unwhitenedError(values)
+    np.testing.assert_array_equal(r0, exact.unwhitenedError(values))
+    matrix, rhs = fluid.linearize(values).jacobian()  # keys in the factor's order [0, 2, 1]
+    np.testing.assert_allclose(-rhs, r0, rtol=1e-12)  # Unit noise: the rows are the residual
+
+    steps = [[3e-5, -2e-5, 1e-5, 2e-5, -3e-5, 1e-5], [-2e-5, 1e-5, 2e-5, -1e-5, 2e-5, 3e-5], [1e-5, 3e-5, -2e-5, 2e-5, 1e-5, -2e-5]]
+    steps = 0.2 * np.array(steps)  # a few 1e-6: the pairs' relative motions move by less than 1e-4 (poses metres apart)
+    small = _moved(poses, steps)
+    model = fluid.unwhitenedError(_values(*small))
+    xi = np.concatenate([steps[key] for key in fluid.keys()])
+    np.testing.assert_allclose(model, r0 + matrix @ xi, atol=1e-6 * np.max(np.abs(r0)))
+    # the cost (the compressed rows' basis is not comparable between points): the step changed it
+    # measurably, and the model's follows the exact one (to the 3 % of the mounts' Kaufman gradient)
+    error_0, error_true = exact.error(values), exact.error(_values(*small))
+    assert abs(error_true - error_0) > 1e-4 * error_0
+    assert fluid.error(_values(*small)) == pytest.approx(error_true, abs=0.05 * abs(error_true - error_0))
+    # Gaussian rigid rows (an exact gradient): the model misses only the rows' curvature, O(xi^2)
+    gaussian, gaussian_fluid = (StackedEpipolarFactor(blocks, SIGMA, huber_k=None, relinearize_threshold=threshold) for threshold in (0.0, 1e-4))
+    gaussian_fluid.error(values)
+    misses = []
+    for fraction in (1.0, 0.5):
+        moved = _values(*_moved(poses, fraction * steps))
+        misses.append(abs(gaussian_fluid.error(moved) - gaussian.error(moved)))
+    assert misses[1] < misses[0] / 3.0 and misses[0] < 0.01 * abs(gaussian.error(_values(*small)) - gaussian.error(values))
+    _assert_gradient_matches_numerical(fluid, _values(*small), small, relative=1e-3)  # its Jacobians: the model's
+
+    window = gtsam.Pose3(gtsam.Rot3.Rz(0.3), np.array([5.0, -2.0, 0.4]))
+    shifted = [window.compose(pose) for pose in poses]  # the whole window moved: no pair's motion changed
+    np.testing.assert_allclose(fluid.unwhitenedError(_values(*shifted)), r0, atol=1e-9 * np.max(np.abs(r0)))
+
+    large = _moved(poses, [[0.0] * 6, [0.0, 0.0, 2e-3, 0.0, 0.0, 0.0], [0.0] * 6])
+    np.testing.assert_array_equal(fluid.unwhitenedError(_values(*large)), exact.unwhitenedError(_values(*large)))
+    with pytest.raises(ValueError, match="relinearize_threshold"):
+        StackedEpipolarFactor(blocks, SIGMA, relinearize_threshold=-1.0)
+
+
 def test_stacked_factor_rejects_bad_input():
     from factors import StackedEpipolarFactor
 
