@@ -421,6 +421,15 @@ class MotionInitializer:
                                                         tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_bounds))
         hitch_prev = hitch = None
         trailer_status = MotionStatus.TOO_FEW_TRACKS
+        ground = None
+        if tractor.status is MotionStatus.SCALE_UNOBSERVABLE:
+            # the trailer's RANSAC needs the tractor's chord, which the tracks did not measure here: the
+            # prediction's stands in for it, and a drive-off's predicted chord (~0 from the standstill
+            # before) read as a standstill left the trailer without an estimate and its cameras without
+            # a RANSAC verdict; the ground plane's measurement comes first
+            ground = self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, inlier_tracks=inliers, scale_chord=tractor.scale_chord),
+                                             tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_bounds)
+            tractor = dataclasses.replace(tractor, T_i_j=ground.T_tractor)
         trailer_pairs = camera_pairs(self.rig, "trailer", first, second)
         trailer_axle_x = self.rig.axle_x("trailer")
         if tractor.status is MotionStatus.STANDSTILL:
@@ -472,9 +481,10 @@ class MotionInitializer:
                 else:
                     trailer_status = MotionStatus.TOO_FEW_TRACKS if trailer_status is not MotionStatus.STANDSTILL else trailer_status
                     T_trailer = predicted
-        return self._driven(self._with_ground_scale(MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer,
-                                                               inlier_tracks=inliers, scale_chord=tractor.scale_chord),
-                                                    tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_bounds))
+        init = MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer, inlier_tracks=inliers, scale_chord=tractor.scale_chord)
+        if ground is not None and tractor.status is MotionStatus.SCALE_UNOBSERVABLE and np.array_equal(tractor.T_i_j, ground.T_tractor):
+            return self._driven(dataclasses.replace(init, scale_chord=ground.scale_chord))  # the motion it measured with: the same measurement
+        return self._driven(self._with_ground_scale(init, tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_bounds))
 
     def _driven(self, init: MotionInit) -> MotionInit:
         """``init``, its tractor motion kept as the newest piece of the path driven (:meth:`_driven_path`)."""

@@ -136,6 +136,13 @@ def estimate_tractor_motion(
         if sum(len(g) for g in groups) < max(2, config.min_inliers):
             return TractorMotionEstimate(SolverStatus.TOO_FEW_POINTS, inlier_masks=empty_masks)
     planar = _estimate_planar(groups, empty_masks, axle_x, config, chord_prior, rng, moving, direction)
+    if planar.status is SolverStatus.STANDSTILL and not moving and median_parallax(groups) >= config.standstill_parallax \
+            and _translated(groups, chord_prior, config):
+        # the tracks moved, but the refinement shrank the chord below min_chord (straight driving:
+        # no tracks fix it); a truck that was moving and whose tracks translated is known to move:
+        # estimated again as such, its still tracks left out (as when a standstill is not reachable)
+        logger.debug("chord refined to %.3f m with translated tracks and a moving prediction: estimated as moving", planar.chord)
+        return estimate_tractor_motion(correspondences, axle_x, config, chord_prior, rng, moving=True, direction=direction)
     if config.max_attitude_change <= 0.0 or planar.status is SolverStatus.STANDSTILL:
         estimate = planar
     else:
@@ -259,6 +266,19 @@ def _estimate_planar(groups: Sequence[Group], empty_masks: list[np.ndarray], axl
     T_i_j = make_pose(*ackermann_motion(refined_yaw, refined_chord, axle_x))
     sign = 1.0 if refined_chord >= 0 else -1.0
     return TractorMotionEstimate(SolverStatus.OK, refined_yaw, refined_chord, T_i_j, masks, count, drawn, yaw_sigma, chord_sigma, sign, rms)
+
+
+def _translated(groups: Sequence[Group], chord_prior: float | None, config: RansacConfig) -> bool:
+    """Whether the tracks of a pair whose motion refined to a chord below ``min_chord`` (though their
+    median parallax is above ``standstill_parallax``) show that the truck moved all the same: a
+    prediction of at least ``min_chord`` (it was moving) and a median parallax, after the pitch and
+    roll a body at rest may turn by (:func:`attitude_compensated_parallax`), of at least
+    ``standstill_parallax``: no rotation at rest leaves that, a translation does. Straight driving
+    fixes no chord (DESIGN 2.3), and the refinement of an unobservable chord may shrink it to
+    nothing: a truck driving at 1.5 m/s was published at rest for a keyframe."""
+    if chord_prior is None or not np.isfinite(chord_prior) or abs(chord_prior) < config.min_chord:
+        return False
+    return bool(np.median(attitude_compensated_parallax(groups)) >= config.standstill_parallax)
 
 
 _ATTITUDE_GAIN = 1.25  # an attitude motion replaces the planar one when it explains this many times its inliers

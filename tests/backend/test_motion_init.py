@@ -289,3 +289,48 @@ def test_a_chord_counts_as_measured_only_when_something_measured_it() -> None:
     assert not _chord_measured(MotionInit(np.eye(4), MotionStatus.TOO_FEW_TRACKS))
     assert _chord_measured(MotionInit(np.eye(4), MotionStatus.SCALE_UNOBSERVABLE, scale_chord=(1.2, 0.02)))
     assert _chord_measured(MotionInit(np.eye(4), MotionStatus.TOO_FEW_TRACKS, wheel_chord=1.2))
+
+
+def _drive_off(monkeypatch, ground_chord: tuple[float, float], hitch_status, predicted_chord: float = 0.014):
+    """A straight pair whose tracks leave the chord unobservable (the prediction's ``predicted_chord``
+    stands in), the ground plane measuring ``ground_chord`` and the trailer's RANSAC answering
+    ``hitch_status``; returns the initializer, the frames, the tractor motion and the tractor
+    translations the trailer's RANSAC was given."""
+    from ampc_vo.backend.motion_init import TractorMotion
+    from ampc_vo.scale.ground import GroundChord, GroundScaleStatus
+    from ampc_vo.solvers import HitchEstimate, TractorMotionEstimate
+    from ampc_vo.solvers.status import SolverStatus
+
+    monkeypatch.setattr("ampc_vo.backend.motion_init.ground_plane_chord",
+                        lambda *args, **kwargs: GroundChord(GroundScaleStatus.OK, *ground_chord, (np.ones(9, bool),), 9))
+    seen = []
+
+    def hitch_angles(pairs, tractor_motion, *args, **kwargs):
+        seen.append(float(np.linalg.norm(tractor_motion[1][:2])))
+        masks = [np.ones(len(pair), bool) for pair in pairs]
+        return HitchEstimate(hitch_status, 0.01, 0.01, 0.0, inlier_masks=masks, num_inliers=sum(len(m) for m in masks), hitch_angle_sigma=0.01)
+
+    monkeypatch.setattr("ampc_vo.backend.motion_init.estimate_hitch_angles", hitch_angles)
+    rng = np.random.default_rng(6)
+    first, second = _pair(0.0, ground_chord[0], rng)
+    rear = [_unit(np.column_stack([rng.uniform(-5, 5, 40), rng.uniform(-2, 1, 40), rng.uniform(10, 40, 40)])) for _ in range(2)]
+    for frame, bearings in zip((first, second), rear):
+        frame.cameras["rear"] = CameraObservations("rear", np.arange(40), np.zeros((40, 2)), bearings)
+    T_predicted = make_pose(np.eye(3), np.array([predicted_chord, 0.0, 0.0]))
+    all_tracks = [np.ones(len(first.cameras[name]), bool) for name in ("front", "left")]
+    unmeasured = TractorMotionEstimate(SolverStatus.SCALE_UNOBSERVABLE, 0.0, predicted_chord, T_predicted, all_tracks, 260, yaw_sigma=1e-4)
+    tractor = TractorMotion(T_predicted, MotionStatus.SCALE_UNOBSERVABLE, unmeasured, 260)
+    return MotionInitializer(RIG, VoConfig()), first, second, tractor, seen
+
+
+def test_the_trailer_ransac_gets_the_ground_planes_chord_where_the_tracks_fixed_none(monkeypatch) -> None:
+    """A drive-off on a straight road: the tracks leave the chord unobservable and the prediction's
+    (1.4 cm, from the standstill before) stands in. The trailer's RANSAC must see the chord the
+    ground plane measured (0.65 m), not the prediction's, which it read as a standstill: the trailer
+    then had no estimate and its cameras no RANSAC verdict (a 0.65 m drive-off came out reversed)."""
+    from ampc_vo.solvers.status import SolverStatus
+
+    initializer, first, second, tractor, seen = _drive_off(monkeypatch, (0.65, 0.03), SolverStatus.NO_CONSENSUS)
+    init = initializer.keyframe(first, second, tractor, 0.0)
+    assert seen and seen[0] == pytest.approx(0.65, abs=0.01)
+    assert init.scale_chord == pytest.approx((0.65, 0.03)) and np.linalg.norm(init.T_tractor[:2, 3]) == pytest.approx(0.65, abs=0.01)

@@ -254,3 +254,35 @@ def test_a_truck_predicted_at_rest_that_moves_off_straight_keeps_its_tracks(rig:
     assert estimate.status is SolverStatus.SCALE_UNOBSERVABLE
     assert estimate.num_inliers >= 0.8 * np.sum(problem.on("tractor")[0].inliers)
     assert estimate.chord == pytest.approx(0.001)
+
+
+def _collapsed_refinement(monkeypatch) -> None:
+    """The local optimisation returns its best model with the chord shrunk to 1 mm (what an
+    unobservable chord's refinement did on a straight road in a realistic world)."""
+    import ampc_vo.solvers.ransac as ransac
+
+    refine = ransac._local_optimization
+
+    def collapsed(*args, **kwargs):
+        return [(cost, yaw, 0.001, np.diag([1e-10, 1e-10]), rms, inliers, start)
+                for cost, yaw, _, _, rms, inliers, start in refine(*args, **kwargs)]
+
+    monkeypatch.setattr(ransac, "_local_optimization", collapsed)
+
+
+def test_a_chord_refined_to_nothing_is_no_standstill_where_the_tracks_translated(rig: Rig, monkeypatch) -> None:
+    """Straight driving at 1.5 m/s: tracks with translation parallax and a moving prediction make a
+    refined chord below ``min_chord`` an unmeasured chord (the prior's), not a standstill; tracks
+    that only pitched (a body at rest on its suspension) stay a standstill."""
+    from ampc_vo.geometry import rot_y
+
+    _collapsed_refinement(monkeypatch)
+    moving = make_two_view_problem(np.random.default_rng(40), rig=rig, **{**DESIGN_2_3, "chord": 1.5, "yaw_change": 0.0})
+    estimate = estimate_tractor_motion(moving.groups("tractor"), moving.tractor_axle_x, chord_prior=1.5)
+    assert estimate.status is SolverStatus.SCALE_UNOBSERVABLE and estimate.chord == pytest.approx(1.5)
+    assert estimate.T_i_j[0, 3] == pytest.approx(1.5, abs=0.05)
+
+    still = make_two_view_problem(np.random.default_rng(41), rig=rig, **{**DESIGN_2_3, "chord": 0.0, "yaw_change": 0.0, "outlier_fraction": 0.0})
+    pitch = rot_y(np.radians(0.6))  # the rebound after a stop: 7 px at 700 px, above the standstill parallax
+    pitched = [(bearings_i, bearings_j @ pitch.T, center) for bearings_i, bearings_j, center in still.groups("tractor")]
+    assert estimate_tractor_motion(pitched, still.tractor_axle_x, chord_prior=1.5).status is SolverStatus.STANDSTILL
