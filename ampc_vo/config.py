@@ -298,8 +298,8 @@ class SmootherConfig:
         _at_least(self.max_window_tracks_per_camera, 2, where + "max_window_tracks_per_camera")
         _at_least(self.max_pair_gap, 1, where + "max_pair_gap")
         _at_least(self.camera_mount_sigma_deg, 0.0, where + "camera_mount_sigma_deg")
-        _at_least(self.relinearize_threshold, 0.0, where + "relinearize_threshold")
         _at_least(self.camera_mount_sigma_deg_per_mps, 0.0, where + "camera_mount_sigma_deg_per_mps")
+        _at_least(self.relinearize_threshold, 0.0, where + "relinearize_threshold")
 
 
 @dataclass(frozen=True)

@@ -482,8 +482,8 @@ class MotionInitializer:
                     trailer_status = MotionStatus.TOO_FEW_TRACKS if trailer_status is not MotionStatus.STANDSTILL else trailer_status
                     T_trailer = predicted
         init = MotionInit(tractor.T_i_j, tractor.status, hitch_prev, hitch, trailer_status, T_trailer, inlier_tracks=inliers, scale_chord=tractor.scale_chord)
-        if ground is not None and tractor.status is MotionStatus.SCALE_UNOBSERVABLE and np.array_equal(tractor.T_i_j, ground.T_tractor):
-            return self._driven(dataclasses.replace(init, scale_chord=ground.scale_chord))  # the motion it measured with: the same measurement
+        if ground is not None and tractor.T_i_j is ground.T_tractor:  # the motion it measured with (no joint refinement since)
+            return self._driven(dataclasses.replace(init, scale_chord=ground.scale_chord))
         return self._driven(self._with_ground_scale(init, tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_bounds))
 
     def _driven(self, init: MotionInit) -> MotionInit:

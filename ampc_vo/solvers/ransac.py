@@ -165,7 +165,7 @@ def _unless_only_pitched(groups: Sequence[Group], estimate: TractorMotionEstimat
         return estimate
     if estimate.chord_sign * np.sign(chord_prior) >= 0.0:
         return estimate
-    if np.median(attitude_compensated_parallax(groups)) >= config.standstill_parallax:
+    if not _only_pitched(groups, config):
         return estimate
     logger.debug("a reversal with an unmeasured chord whose tracks only pitched and rolled: a standstill")
     return _standstill(groups)
@@ -278,7 +278,13 @@ def _translated(groups: Sequence[Group], chord_prior: float | None, config: Rans
     nothing: a truck driving at 1.5 m/s was published at rest for a keyframe."""
     if chord_prior is None or not np.isfinite(chord_prior) or abs(chord_prior) < config.min_chord:
         return False
-    return bool(np.median(attitude_compensated_parallax(groups)) >= config.standstill_parallax)
+    return not _only_pitched(groups, config)
+
+
+def _only_pitched(groups: Sequence[Group], config: RansacConfig) -> bool:
+    """Whether the tracks moved no more than a body pitching and rolling at rest explains: the median
+    of :func:`attitude_compensated_parallax` below ``standstill_parallax``."""
+    return bool(np.median(attitude_compensated_parallax(groups)) < config.standstill_parallax)
 
 
 _ATTITUDE_GAIN = 1.25  # an attitude motion replaces the planar one when it explains this many times its inliers
