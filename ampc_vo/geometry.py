@@ -158,6 +158,17 @@ def pose_from_xyz_quat(row: ArrayF) -> ArrayF:
     return make_pose(rotation_from_quat_xyzw(row[3:7]), row[:3])
 
 
+def rotation_from_vector(vector: ArrayF) -> ArrayF:
+    """Rotation matrix of a rotation vector (axis times angle, radians): Rodrigues' formula
+    ``R = I + sin(a) K + (1 - cos(a)) K^2`` with ``K`` the skew matrix of the unit axis."""
+    vector = np.asarray(vector, dtype=float)
+    angle = float(np.linalg.norm(vector))
+    if angle < 1e-12:
+        return np.eye(3) + skew(vector)
+    axis = skew(vector / angle)
+    return np.eye(3) + np.sin(angle) * axis + (1.0 - np.cos(angle)) * axis @ axis
+
+
 def rotation_angle(rotation: ArrayF) -> float:
     """Angle (radians) of a rotation matrix; used for rotation errors."""
     cos_angle = np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)

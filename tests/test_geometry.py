@@ -5,8 +5,8 @@ import pytest
 from ampc_vo.epipolar import gec_algebraic, gec_sampson
 from ampc_vo.errors import BearingError
 from ampc_vo.geometry import (
-    check_bearings, invert_pose, make_pose, planar_pose, pose_from_xyz_quat, pose_to_xyz_quat,
-    quat_xyzw_from_rotation, relative_pose, rot_x, rot_y, rot_z, rotation_from_quat_xyzw,
+    check_bearings, invert_pose, make_pose, orthonormality_error, planar_pose, pose_from_xyz_quat, pose_to_xyz_quat,
+    quat_xyzw_from_rotation, relative_pose, rot_x, rot_y, rot_z, rotation_from_quat_xyzw, rotation_from_vector,
     transform_points, unit_heading, unit_normal, wrap_angle, yaw_of,
 )
 from ampc_vo.rig import camera_rotation
@@ -118,3 +118,13 @@ def test_rays_hit_box_slab_test():
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     np.testing.assert_array_equal(rays_hit_box(np.zeros(3), directions, lower, upper), [True, True, False, False, False, True])
     assert rays_hit_box(np.array([2.5, 0.0, 0.0]), directions, lower, upper).all()
+
+
+@pytest.mark.parametrize("vector", [(0.0, 0.0, 0.0), (1e-9, -2e-9, 3e-9), (0.3, -0.2, 0.1), (0.0, 0.0, np.pi - 1e-3)])
+def test_rotation_from_vector_matches_scipy_and_rot_z(vector):
+    from scipy.spatial.transform import Rotation
+
+    rotation = rotation_from_vector(np.array(vector))
+    np.testing.assert_allclose(rotation, Rotation.from_rotvec(vector).as_matrix(), atol=1e-12)
+    assert orthonormality_error(rotation) < 1e-12
+    np.testing.assert_allclose(rotation_from_vector(np.array([0.0, 0.0, 0.7])), rot_z(0.7), atol=1e-12)

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from ampc_vo.io.kitti import kitti_rig
-from ampc_vo.geometry import invert_pose, make_pose
+from ampc_vo.geometry import invert_pose, make_pose, rot_y
 from ampc_vo.observations import CameraObservations, FrameObservations
 from ampc_vo.solvers import ackermann_motion
-from ampc_vo.scale.stereo import StereoScaleStatus, stereo_chord, stereo_motion, stereo_points
+from ampc_vo.scale.stereo import StereoScaleOptions, StereoScaleStatus, stereo_chord, stereo_motion, stereo_points
 
 FOCAL, BASELINE = 707.0, 0.54
 CALIBRATION = {
@@ -111,3 +111,26 @@ def test_a_sequence_starting_in_a_turn_finds_its_yaw_by_search(seed):
     assert searched.ok
     assert abs(searched.chord - chord) < 0.02 * chord
     assert abs(searched.yaw_change - yaw_change) < np.radians(0.05)
+
+
+@pytest.mark.parametrize("seed", [6, 7])
+def test_pitch_and_vertical_motion_do_not_go_into_the_chord(seed):
+    """A body that pitches (0.4 deg) and rises (3 cm) between the views, as on a real road: the 6-DoF
+    refinement (``free_attitude``, module docstring "Attitude") measures the axle chord to better than
+    1 %; the planar Ackermann motion puts the vertical motion into the chord (several % off)."""
+    rng = np.random.default_rng(seed)
+    points = np.column_stack([rng.uniform(4.0, 30.0, 400), rng.uniform(-8.0, 8.0, 400), rng.uniform(0.0, 3.0, 400)])
+    rotation, translation = ackermann_motion(np.radians(2.5), 1.0, AXLE_X)
+    rotation = rotation @ rot_y(np.radians(-0.4))
+    translation = translation + np.array([0.0, 0.0, 0.03])
+    T_i_j = make_pose(rotation, translation)
+    true_chord = float(np.linalg.norm(rotation @ np.array([AXLE_X, 0.0, 0.0]) + translation - np.array([AXLE_X, 0.0, 0.0])))
+    first, second = observe(np.eye(4), points, 0, rng, 0.3), observe(T_i_j, points, 1, rng, 0.3)
+    guess = make_pose(*ackermann_motion(np.radians(2.0), 0.9, AXLE_X))
+    free = stereo_motion(RIG, "tractor", first, second, guess, AXLE_X)
+    planar = stereo_motion(RIG, "tractor", first, second, guess, AXLE_X, StereoScaleOptions(free_attitude=False))
+    assert free.ok and planar.ok
+    assert abs(free.chord - true_chord) < 0.01 * true_chord
+    assert abs(free.chord - true_chord) < 3.0 * free.chord_sigma
+    np.testing.assert_allclose(free.T_i_j, T_i_j, atol=5e-3)
+    assert abs(planar.chord - true_chord) > 0.03 * true_chord
