@@ -225,7 +225,9 @@ class OdometryPipeline:
         chord = self.wheel_odometry(first.timestamp, second.timestamp)
         return None if chord is None else float(chord)
 
-    def _add_keyframe(self, frame: FrameObservations, tractor: TractorMotion, elapsed: float) -> list[KeyframeEstimate]:
+    def _add_keyframe(self, frame: FrameObservations, tractor: TractorMotion, elapsed: float, deferred: bool = False) -> list[KeyframeEstimate]:
+        """Add a keyframe to the smoother (``deferred``: published as in lagged mode,
+        :meth:`_replay_bootstrap`); what it publishes is written and returned."""
         predicted_trailer = self._predicted(elapsed, self._trailer_velocity) if self._trailer_velocity is not None else None
         init = self.initializer.keyframe(self._last_keyframe, frame, tractor, self._hitch, predicted_trailer, speed_before=self._speed_before,
                                          speed_age=self._speed_age)
@@ -237,7 +239,7 @@ class OdometryPipeline:
         self._statuses[init.tractor_status.value] = self._statuses.get(init.tractor_status.value, 0) + 1
         if self.smoother.keyframe_count == 0:
             self.smoother.add_keyframe(self._last_keyframe, _first_init())
-        published = self.smoother.add_keyframe(frame, init)
+        published = self.smoother.add_keyframe(frame, init, deferred=deferred)
         self._last_keyframe = frame
         self._after_publish(published)
         return published
@@ -297,6 +299,15 @@ class OdometryPipeline:
         self._bootstrap_speeds = self._bootstrap_speeds[keep:]
 
     def _replay_bootstrap(self, speed: float) -> list[KeyframeEstimate]:
+        """Add the buffered bootstrap keyframes to the smoother, their unmeasured chords at ``speed``.
+        Nothing was published while they waited for scale: with ``output.publish: latest`` they are
+        published now as in lagged mode, each when it leaves the window during the replay and the
+        rest with the window's estimate at its end (what an online user can have at this moment;
+        DESIGN 11, "Latest publication after the scale bootstrap"), not with the estimate each had
+        as the newest keyframe: a standing start's keyframes at rest then carry the hitch angle the
+        drive-off measured, and the first moving keyframe (a chord of a few centimetres) the next
+        ones' motion."""
+        latest = self.config.output.publish == "latest"
         buffered, self._bootstrap = self._bootstrap, []
         self._bootstrapping = False
         self._last_keyframe = buffered[0][0]
@@ -311,7 +322,11 @@ class OdometryPipeline:
                 T_i_j = tractor.T_i_j.copy()
                 T_i_j[:3, 3] = direction * chord
                 tractor = TractorMotion(T_i_j, tractor.status, tractor.estimate, tractor.shared_tracks)
-            published += self._add_keyframe(frame, tractor, elapsed)
+            published += self._add_keyframe(frame, tractor, elapsed, deferred=latest)
+        if latest:
+            window = self.smoother.publish_window()
+            self._after_publish(window)
+            published += window
         return published
 
     def finish(self) -> list[KeyframeEstimate]:

@@ -305,15 +305,18 @@ class ArticulatedSmoother:
     def keyframe_count(self) -> int:
         return self._count
 
-    def add_keyframe(self, observations: FrameObservations, init: MotionInit) -> list[KeyframeEstimate]:
-        """Add keyframe k with its initial motion from keyframe k-1 and re-optimise the window."""
+    def add_keyframe(self, observations: FrameObservations, init: MotionInit, deferred: bool = False) -> list[KeyframeEstimate]:
+        """Add keyframe k with its initial motion from keyframe k-1 and re-optimise the window.
+        Returns what it publishes: with ``output.publish: latest`` keyframe k, with ``lagged`` (or
+        ``deferred``: keyframes whose publication waited, :meth:`publish_window`) those leaving the
+        window."""
         keyframe = _Keyframe(self._count, observations.frame, observations.timestamp, observations, init)
         self._count += 1
         if keyframe.index == 0:
             self._pending_first = keyframe
             return []
         timing = BackendTiming()
-        lagged = self.config.output.publish == "lagged"
+        lagged = self.config.output.publish == "lagged" or deferred
         leaving: list[KeyframeEstimate] = []
         if lagged:
             # keyframes the coming update will marginalise: publish their fully smoothed estimate now
@@ -473,6 +476,12 @@ class ArticulatedSmoother:
         (and those held at rest, :meth:`_release`)."""
         if self.config.output.publish != "lagged":
             return []
+        return self.publish_window()
+
+    def publish_window(self) -> list[KeyframeEstimate]:
+        """Every keyframe in the window with its current estimate, and those held at rest
+        (:meth:`_release`): the end of a lagged stream, or of keyframes added ``deferred`` (the
+        scale bootstrap's replay in ``latest`` mode, ``pipeline.OdometryPipeline._replay_bootstrap``)."""
         remaining = self._release([(self._publish(self._window[index], self._sigma_of(index)), False) for index in sorted(self._window)])
         held, self._held = self._held, []
         return held + remaining
