@@ -624,7 +624,9 @@ class ArticulatedSmoother:
                     pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(init.wheel_chord)), wheel_sigma))
             if body == "tractor" and init.scale_chord is not None:
                 chord, chord_sigma = init.scale_chord
-                pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(chord)), np.array([float(chord_sigma)]), config.huber_k))
+                # Gaussian: gross outliers are dropped before (MotionInitializer._reachable); under a Huber
+                # kernel every chord of the window could be given up at once (DESIGN 11, "Measured chords")
+                pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(chord)), np.array([float(chord_sigma)])))
         keyframe.epipolar_factor = self._add_stacked_epipolar(epipolar_blocks, pending)
 
     @property

@@ -162,6 +162,39 @@ def test_a_ground_chord_the_truck_cannot_have_driven_is_dropped(monkeypatch, cho
     assert initializer.keyframe(first, second, tractor, None).scale_chord is not None
 
 
+@pytest.mark.parametrize("chord, unreachable", [(0.3, True), (2.85, False), (2.7, False)])
+def test_a_two_point_chord_the_truck_cannot_have_driven_is_not_a_measurement(monkeypatch, chord, unreachable) -> None:
+    """At 29 m/s (2.9 m per 0.1 s frame) the 2-point solver near straight returned 'ok' chords of
+    0.2-1.4 m with small formal sigmas on the realistic fast motorway's images: the keyframe policy
+    read a slow truck, left keyframes out and 17 m gaps between them. A chord the truck cannot have
+    driven (:meth:`MotionInitializer._reachable`) is taken as unmeasured: scale unobservable, the
+    prediction's chord on the estimate's yaw change. A plausible one stays a measurement."""
+    import dataclasses
+
+    import ampc_vo.backend.motion_init as motion_init
+    from ampc_vo.solvers import TractorMotionEstimate
+
+    real = motion_init.estimate_tractor_motion
+
+    def spurious(*args, **kwargs):
+        estimate = real(*args, **kwargs)
+        axle_x = RIG.axle_x("tractor")
+        return dataclasses.replace(estimate, status=motion_init.SolverStatus.OK, chord=chord, chord_sigma=0.05,
+                                   T_i_j=make_pose(*ackermann_motion(estimate.yaw_change, chord, axle_x)))
+
+    monkeypatch.setattr(motion_init, "estimate_tractor_motion", spurious)
+    initializer = MotionInitializer(RIG, VoConfig(mode="tractor_only"))
+    first, second = _pair(np.radians(0.1), 2.9, np.random.default_rng(6))
+    predicted = make_pose(*ackermann_motion(np.radians(0.1), 2.85, RIG.axle_x("tractor")))
+    tractor = initializer.tractor(first, second, predicted, prediction_sigma=0.8, speed_before=28.5)
+    assert isinstance(tractor.estimate, TractorMotionEstimate)
+    if unreachable:
+        assert tractor.status is MotionStatus.SCALE_UNOBSERVABLE and tractor.chord == pytest.approx(2.85, abs=0.01)
+    else:
+        assert tractor.status is MotionStatus.OK and abs(tractor.chord - 2.85) < 0.2
+    assert initializer.tractor(first, second, predicted, prediction_sigma=0.8).status is MotionStatus.OK   # speed unknown: no bound
+
+
 def _at(frames: tuple[FrameObservations, FrameObservations], start: float, end: float) -> tuple[FrameObservations, FrameObservations]:
     """The same observations at other times (a later keyframe pair)."""
     import dataclasses
