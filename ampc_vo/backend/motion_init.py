@@ -23,7 +23,7 @@ import numpy as np
 from ampc_vo.config import VoConfig
 from ampc_vo.epipolar import gec_sampson
 from ampc_vo.geometry import invert_pose, make_pose, rays_hit_box, rot_z, yaw_of
-from ampc_vo.scale.ground import GroundScaleOptions, ground_plane_chord
+from ampc_vo.scale.ground import GroundScaleOptions, axle_displacement, ground_plane_chord
 from ampc_vo.observations import FrameObservations, match_tracks
 from ampc_vo.rig import BodyBox, Camera, Rig
 from ampc_vo.backend.smoother import MotionInit, MotionStatus
@@ -186,8 +186,7 @@ def _ackermann_like(T_like: np.ndarray | None, yaw_change: float, chord: float, 
 
 def _chord_of(T_i_j: np.ndarray, axle_x: float) -> float:
     """Signed chord of the axle midpoint for an Ackermann motion (DESIGN 2 (NH))."""
-    axle = np.array([axle_x, 0.0, 0.0])
-    displacement = T_i_j[:3, :3] @ axle + T_i_j[:3, 3] - axle
+    displacement = axle_displacement(T_i_j, axle_x)
     yaw = float(np.arctan2(T_i_j[1, 0], T_i_j[0, 0]))
     return float(np.dot(displacement[:2], [np.cos(0.5 * yaw), np.sin(0.5 * yaw)]))
 

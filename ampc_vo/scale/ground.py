@@ -322,11 +322,17 @@ class GroundChord:
         return (float(self.chord), float(self.sigma)) if self.ok else None
 
 
+def axle_displacement(T_i_j: np.ndarray, axle_x: float) -> np.ndarray:
+    """The axle midpoint's displacement ``R m + t - m`` (3,) of a motion ``T_i_j``, body frame i,
+    ``m = (axle_x, 0, 0)`` (DESIGN 2 (NH))."""
+    axle = np.array([axle_x, 0.0, 0.0])
+    return T_i_j[:3, :3] @ axle + T_i_j[:3, 3] - axle
+
+
 def axle_chord_direction(T_i_j: np.ndarray, axle_x: float) -> np.ndarray | None:
     """Unit direction ``d`` of the axle displacement ``R m + t - m`` of a motion (DESIGN 2 (NH)),
     or ``None`` when the motion does not move the axle."""
-    axle = np.array([axle_x, 0.0, 0.0])
-    displacement = T_i_j[:3, :3] @ axle + T_i_j[:3, 3] - axle
+    displacement = axle_displacement(T_i_j, axle_x)
     norm = float(np.linalg.norm(displacement))
     return displacement / norm if norm > 1e-9 and np.isfinite(norm) else None
 

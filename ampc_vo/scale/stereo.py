@@ -69,7 +69,7 @@ from enum import Enum
 import numpy as np
 
 from ampc_vo.geometry import invert_pose, make_pose, rotation_from_vector, triangulate_midpoint, yaw_of
-from ampc_vo.scale.ground import axle_chord_direction
+from ampc_vo.scale.ground import axle_chord_direction, axle_displacement
 from ampc_vo.observations import FrameObservations
 from ampc_vo.rig import Rig
 from ampc_vo.observations import match_landmarks
@@ -338,10 +338,11 @@ def _all_sightings(rig: Rig, body: str, points_first: StereoPoints, points_secon
     return _Sightings(*(np.concatenate([part[index] for part in parts]) for index in range(7)))
 
 
-def _motion_residuals(sightings: _Sightings, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
-    """Whitened angular residuals (N, 3) of the sightings under the motion ``T_i_j = (rotation,
-    translation)`` (module docstring, "Yaw and chord together"): a forward sighting's point moves
-    into view j as ``R^T (X - t)``, a backward one's into view i as ``R X + t``."""
+def _motion_residuals(sightings: _Sightings, T_i_j: np.ndarray) -> np.ndarray:
+    """Whitened angular residuals (N, 3) of the sightings under the motion ``T_i_j = (R, t)``
+    (module docstring, "Yaw and chord together"): a forward sighting's point moves into view j as
+    ``R^T (X - t)``, a backward one's into view i as ``R X + t``."""
+    rotation, translation = T_i_j[:3, :3], T_i_j[:3, 3]
     forward = ~sightings.backward
     moved = np.empty_like(sightings.points)
     moved[forward] = (sightings.points[forward] - translation) @ rotation            # R^T (X - t)
@@ -359,7 +360,7 @@ def _motion_residuals(sightings: _Sightings, rotation: np.ndarray, translation: 
 
 def _angular_residuals(sightings: _Sightings, yaw_change: float, chord: float, axle_x: float) -> np.ndarray:
     """:func:`_motion_residuals` of the Ackermann motion (DESIGN 2 (NH)) of ``yaw_change`` and ``chord``."""
-    return _motion_residuals(sightings, *ackermann_motion(yaw_change, chord, axle_x))
+    return _motion_residuals(sightings, make_pose(*ackermann_motion(yaw_change, chord, axle_x)))
 
 
 def _subset(sightings: _Sightings, keep: np.ndarray) -> _Sightings:
@@ -417,10 +418,9 @@ def _gauss_newton(residuals: Callable[[np.ndarray, _Sightings], np.ndarray], par
     return _Fit(parameters, np.linalg.pinv(jacobian.T @ jacobian) * variance_factor, used)
 
 
-def _axle_displacement(rotation: np.ndarray, translation: np.ndarray, axle_x: float) -> np.ndarray:
-    """The axle midpoint's displacement ``R m + t - m`` of a motion (DESIGN 2 (NH)), body frame i."""
-    axle = np.array([axle_x, 0.0, 0.0])
-    return rotation @ axle + translation - axle
+def _along_heading(vector: np.ndarray, yaw_change: float) -> bool:
+    """Whether ``vector`` points along the mean heading ``u(yaw_change / 2)`` of an arc (forwards)."""
+    return float(vector @ np.array([np.cos(0.5 * yaw_change), np.sin(0.5 * yaw_change), 0.0])) >= 0.0
 
 
 def stereo_motion(rig: Rig, body: str, first: FrameObservations, second: FrameObservations, T_guess: np.ndarray, axle_x: float,
@@ -441,8 +441,7 @@ def stereo_motion(rig: Rig, body: str, first: FrameObservations, second: FrameOb
     sightings = _all_sightings(rig, body, *points, first, second, options)
     yaw_change = float(np.arctan2(T_guess[1, 0], T_guess[0, 0]))
     direction = axle_chord_direction(T_guess, axle_x)
-    heading = np.array([np.cos(0.5 * yaw_change), np.sin(0.5 * yaw_change), 0.0])
-    chord = float(guess.chord) * (1.0 if direction is None or float(direction @ heading) >= 0.0 else -1.0)
+    chord = float(guess.chord) * (1.0 if direction is None or _along_heading(direction, yaw_change) else -1.0)
     planar = _gauss_newton(lambda values, subset: _angular_residuals(subset, values[0], values[1], axle_x), np.array([yaw_change, chord]),
                            sightings, options, iterations)
     if not isinstance(planar, _Fit):
@@ -453,31 +452,31 @@ def stereo_motion(rig: Rig, body: str, first: FrameObservations, second: FrameOb
     if options.free_attitude:
         free = _free_motion(sightings, rotation, translation, axle_x, options, iterations)
         if free is not None:
-            rotation, translation, sigma, used = free
-            displacement = _axle_displacement(rotation, translation, axle_x)
-            half_yaw = 0.5 * yaw_of(rotation)
-            sign = 1.0 if float(displacement @ np.array([np.cos(half_yaw), np.sin(half_yaw), 0.0])) >= 0.0 else -1.0
-            yaw_change, chord = yaw_of(rotation), sign * float(np.linalg.norm(displacement))
+            T_free, sigma, used = free
+            displacement = axle_displacement(T_free, axle_x)
+            yaw_change = yaw_of(T_free[:3, :3])
+            chord = (1.0 if _along_heading(displacement, yaw_change) else -1.0) * float(np.linalg.norm(displacement))
+            return StereoMotion(StereoScaleStatus.OK, yaw_change, chord, max(sigma, options.relative_sigma_floor * abs(chord)), T_free, used)
     return StereoMotion(StereoScaleStatus.OK, yaw_change, chord, max(sigma, options.relative_sigma_floor * abs(chord)),
                         make_pose(rotation, translation), used)
 
 
 def _free_motion(sightings: _Sightings, rotation: np.ndarray, translation: np.ndarray, axle_x: float, options: StereoScaleOptions,
-                 iterations: int) -> tuple[np.ndarray, np.ndarray, float, int] | None:
+                 iterations: int) -> tuple[np.ndarray, float, int] | None:
     """The 6-DoF motion refined from the planar Ackermann one (module docstring, "Attitude"):
-    ``R = Exp(w) R0``, ``t = t0 + v``; returns ``(R, t, sigma of the axle chord, inliers)``, or
+    ``R = Exp(w) R0``, ``t = t0 + v``; returns ``(T_i_j, sigma of the axle chord, inliers)``, or
     ``None`` where the refinement fails (the planar motion then stands)."""
 
-    def motion(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return rotation_from_vector(values[:3]) @ rotation, translation + values[3:]
+    def motion(values: np.ndarray) -> np.ndarray:
+        return make_pose(rotation_from_vector(values[:3]) @ rotation, translation + values[3:])
 
-    fit = _gauss_newton(lambda values, subset: _motion_residuals(subset, *motion(values)), np.zeros(6), sightings, options, iterations)
+    fit = _gauss_newton(lambda values, subset: _motion_residuals(subset, motion(values)), np.zeros(6), sightings, options, iterations)
     if not isinstance(fit, _Fit):
         return None
-    length = float(np.linalg.norm(_axle_displacement(*motion(fit.parameters), axle_x)))
-    gradient = np.array([(np.linalg.norm(_axle_displacement(*motion(fit.parameters + _STEP * unit), axle_x)) - length) / _STEP
+    length = float(np.linalg.norm(axle_displacement(motion(fit.parameters), axle_x)))
+    gradient = np.array([(np.linalg.norm(axle_displacement(motion(fit.parameters + _STEP * unit), axle_x)) - length) / _STEP
                          for unit in np.eye(6)])
-    return (*motion(fit.parameters), float(np.sqrt(max(gradient @ fit.covariance @ gradient, 0.0))), fit.inliers)
+    return motion(fit.parameters), float(np.sqrt(max(gradient @ fit.covariance @ gradient, 0.0))), fit.inliers
 
 
 _YAW_SEARCH_STEP = np.radians(0.5)  # finer than the yaw basin of the consensus chord (side points' chords move ~2 %/0.1 deg)
