@@ -406,10 +406,15 @@ class OutputConfig:
     progress: bool = True
     write_timing: bool = True
     publish: str = "lagged"
+    # latest: the keyframes of the start (the scale bootstrap's) are published once the newest
+    # keyframe's hitch sigma is at most this (or as they leave the window); null: at the bootstrap's end
+    latest_start_hitch_sigma_deg: float | None = 1.0
 
     def validate(self, where: str) -> None:
         if self.publish not in PUBLISH_POLICIES:
             raise _error(where + "publish", f"must be one of {PUBLISH_POLICIES}, got {self.publish!r}")
+        if self.latest_start_hitch_sigma_deg is not None and not self.latest_start_hitch_sigma_deg > 0:
+            raise _error(where + "latest_start_hitch_sigma_deg", f"must be > 0 or null, got {self.latest_start_hitch_sigma_deg}")
         if self.log_level.upper() not in LOG_LEVELS:
             raise _error(where + "log_level", f"must be one of {LOG_LEVELS}, got {self.log_level!r}")
 

@@ -146,6 +146,7 @@ class OdometryPipeline:
         self._distance = 0.0
         self._statuses: dict[str, int] = {}
         self._bootstrapping = True
+        self._deferring = False  # latest: the start's publication waits for the hitch (_publish_start_if_observed)
         self._bootstrap: list[tuple[FrameObservations, TractorMotion | None]] = []
         self._bootstrap_speeds: list[float | None] = []  # measured metric speed of each bootstrap pair
         self._unscaled_frames = 0  # bootstrap keyframes dropped: their speed was never measured
@@ -225,9 +226,11 @@ class OdometryPipeline:
         chord = self.wheel_odometry(first.timestamp, second.timestamp)
         return None if chord is None else float(chord)
 
-    def _add_keyframe(self, frame: FrameObservations, tractor: TractorMotion, elapsed: float, deferred: bool = False) -> list[KeyframeEstimate]:
-        """Add a keyframe to the smoother (``deferred``: published as in lagged mode,
-        :meth:`_replay_bootstrap`); what it publishes is written and returned."""
+    def _add_keyframe(self, frame: FrameObservations, tractor: TractorMotion, elapsed: float, replay: bool = False) -> list[KeyframeEstimate]:
+        """Add a keyframe to the smoother (published as in lagged mode while the start's publication
+        is deferred: :meth:`_replay_bootstrap`, :meth:`_publish_start_if_observed`; ``replay``: a
+        keyframe of the bootstrap's replay, which ends it only once all are in); what it publishes is
+        written and returned."""
         predicted_trailer = self._predicted(elapsed, self._trailer_velocity) if self._trailer_velocity is not None else None
         init = self.initializer.keyframe(self._last_keyframe, frame, tractor, self._hitch, predicted_trailer, speed_before=self._speed_before,
                                          speed_age=self._speed_age)
@@ -239,9 +242,11 @@ class OdometryPipeline:
         self._statuses[init.tractor_status.value] = self._statuses.get(init.tractor_status.value, 0) + 1
         if self.smoother.keyframe_count == 0:
             self.smoother.add_keyframe(self._last_keyframe, _first_init())
-        published = self.smoother.add_keyframe(frame, init, deferred=deferred)
+        published = self.smoother.add_keyframe(frame, init, deferred=self._deferring)
         self._last_keyframe = frame
         self._after_publish(published)
+        if self._deferring and not replay:
+            published += self._publish_start_if_observed()
         return published
 
     # ------------------------------------------------------------------ scale bootstrap
@@ -310,6 +315,7 @@ class OdometryPipeline:
         latest = self.config.output.publish == "latest"
         buffered, self._bootstrap = self._bootstrap, []
         self._bootstrapping = False
+        self._deferring = latest
         self._last_keyframe = buffered[0][0]
         published: list[KeyframeEstimate] = []
         for (previous, _), (frame, tractor) in zip(buffered, buffered[1:]):
@@ -322,11 +328,30 @@ class OdometryPipeline:
                 T_i_j = tractor.T_i_j.copy()
                 T_i_j[:3, 3] = direction * chord
                 tractor = TractorMotion(T_i_j, tractor.status, tractor.estimate, tractor.shared_tracks)
-            published += self._add_keyframe(frame, tractor, elapsed, deferred=latest)
+            published += self._add_keyframe(frame, tractor, elapsed, replay=True)
         if latest:
-            window = self.smoother.publish_window()
-            self._after_publish(window)
-            published += window
+            published += self._publish_start_if_observed()
+        return published
+
+    def _publish_start_if_observed(self) -> list[KeyframeEstimate]:
+        """With ``output.publish: latest``, the start's keyframes (the scale bootstrap's, and those
+        after it while the hitch is not yet observed) wait until the newest keyframe's hitch sigma
+        is at most ``output.latest_start_hitch_sigma_deg``: then the window is published with its
+        estimate (:meth:`ArticulatedSmoother.publish_window`) and publication is causal from there
+        on; until then keyframes are published as they leave the window (lagged). A standing start
+        measures the hitch only as it drives off: at the end of the bootstrap (a reversing start
+        parked at -35 deg: after 0.17 m) the window's hitch was 3 deg off with a sigma of 8.5 deg,
+        honest but no use for a jack-knife warning; 0.5 s later it is known to a degree (DESIGN 11,
+        "Latest publication after the scale bootstrap"). Without a hitch sigma (no trailer, mode
+        separate, marginals off) or with the threshold null: at once. Returns what it published."""
+        threshold = self.config.output.latest_start_hitch_sigma_deg
+        window = self.smoother.window_indices()
+        sigma = self.smoother.hitch_sigma(window[-1]) if window else None
+        if threshold is not None and sigma is not None and sigma > np.radians(threshold):
+            return []
+        self._deferring = False
+        published = self.smoother.publish_window()
+        self._after_publish(published)
         return published
 
     def finish(self) -> list[KeyframeEstimate]:
@@ -343,6 +368,11 @@ class OdometryPipeline:
             else:
                 self._unscaled_frames += len(self._bootstrap)
                 logger.warning("stream ended before any metric motion was measured: no poses for its last %d keyframes", len(self._bootstrap))
+        if self._deferring:  # the hitch never observed at the start: what the window has
+            self._deferring = False
+            window = self.smoother.publish_window()
+            self._after_publish(window)
+            published += window
         remaining = self.smoother.flush()
         self._after_publish(remaining)
         wheel_scale = self.smoother.wheel_scale()
@@ -421,7 +451,7 @@ class OdometryPipeline:
     def _salvage(self) -> None:
         """Publish the keyframes still in the smoother's window after an interrupted run."""
         try:
-            self._after_publish(self.smoother.flush())
+            self._after_publish(self.smoother.publish_window() if self._deferring else self.smoother.flush())
         except Exception as error:  # the run is already failing: keep its error, log this one
             logger.error("could not publish the last window: %s", error)
 

@@ -513,6 +513,11 @@ class ArticulatedSmoother:
             published.append(estimate)
         return published
 
+    def hitch_sigma(self, index: int) -> float | None:
+        """1-sigma (rad) of θ at keyframe ``index`` of the window from the last marginals
+        (:meth:`_sigma_of`); ``None`` without a joint hitch or with marginals off."""
+        return self._sigma_of(index)
+
     def estimate(self, index: int) -> KeyframeEstimate:
         """Current (smoothed) estimate of a keyframe still in the window."""
         return self._publish(self._window[index], None)

@@ -245,6 +245,34 @@ def test_a_standstill_longer_than_the_lag_gets_the_hitch_of_the_drive_off(standi
     np.testing.assert_array_equal(tractor.timestamps, hitch.timestamps)
 
 
+def test_latest_publication_of_a_standing_start_waits_for_the_hitch(standing_start):
+    """Issue 16 (latest hitch max): with ``output.publish: latest`` the start's keyframes are published
+    once the newest keyframe's hitch sigma is at most ``output.latest_start_hitch_sigma_deg`` (null:
+    when the scale bootstrap ends, with the sigma the hitch has then: 1.1 deg on this route, 8.5 deg
+    on a start parked at -35 deg that reverses); every keyframe is published once, in time order,
+    the same keyframes as in lagged mode, and causally (one per keyframe) after the first batch."""
+    root, result = standing_start
+    lagged_config = config_from_dict({"output": {"progress": False, "publish": "lagged"}})
+    _, lagged = run_on_frames(result.rig, lagged_config, result.measurements.frames(result.rig))
+    first_batches = {}
+    for threshold_deg in (None, 0.5):
+        config = config_from_dict({"output": {"progress": False, "publish": "latest", "latest_start_hitch_sigma_deg": threshold_deg}})
+        batches: list[tuple[float, list]] = []
+
+        def record(frame, published):
+            if published:
+                batches.append((frame.timestamp if frame is not None else np.inf, published))
+
+        _, estimates = run_on_frames(result.rig, config, result.measurements.frames(result.rig), on_frame=record)
+        assert [estimate.timestamp for estimate in estimates] == [estimate.timestamp for estimate in lagged]
+        assert all(len(batch) == 1 for time, batch in batches[1:] if time < np.inf)
+        first_batches[threshold_deg] = batches[0]
+    (waited_until, waited), (bootstrap_end, at_bootstrap) = first_batches[0.5], first_batches[None]
+    assert np.degrees(at_bootstrap[-1].hitch_sigma) > 0.5
+    assert np.degrees(waited[-1].hitch_sigma) <= 0.5 and waited_until > bootstrap_end and len(waited) > len(at_bootstrap)
+    assert np.all(np.degrees([estimate.hitch_sigma for estimate in waited]) < 1.0)
+
+
 def test_the_constant_velocity_prediction_keeps_the_direction_of_travel() -> None:
     """Reversing (the body's origin moving backwards in its own frame) gives a negative speed, so
     the next pair is predicted backwards; a wheel-odometry chord sets the length with its own sign."""
