@@ -272,8 +272,9 @@ class SmootherConfig:
     lm_relative_error_tol: float = 1e-4
     # an epipolar factor whose keyframe pairs' relative motions moved less than this (rad; translation per
     # metre of chord) since its last full evaluation gives its Gauss-Newton model there (iSAM2's fluid
-    # relinearisation; 1e-4 is ~0.05 px at 500 px focal length; 0: every evaluation in full; DESIGN 11)
-    relinearize_threshold: float = 1e-4
+    # relinearisation; 1e-3 moves a row by ~0.5 px at 500 px focal length, the model's own error is
+    # second order, ~1e-3 px; 0: every evaluation in full; DESIGN 11)
+    relinearize_threshold: float = 1e-3
     marginals: bool = True
 
     def validate(self, where: str) -> None:

@@ -285,13 +285,14 @@ def test_relinearisation_threshold_changes_the_estimate_by_far_less_than_its_err
     monkeypatch.setattr(epipolar, "stacked_epipolar_error", counted)
     frames = list(range(24, 55, 2))
     runs = {}
-    for threshold in (0.0, 1e-4):
+    default = config_from_dict({}).smoother.relinearize_threshold
+    for threshold in (0.0, default):
         full_evaluations.clear()
         _, estimates = _run(short_route, config_from_dict({"smoother": {"relinearize_threshold": threshold}}), frames)
         runs[threshold] = (estimates, len(full_evaluations))
-    (exact, exact_count), (fluid, fluid_count) = runs[0.0], runs[1e-4]
-    # some steps use the model (measured 263 of 269 in full: this route's keyframes are all young; on the
-    # demo about half of the evaluations are models, the factors that stay in the window longer)
+    (exact, exact_count), (fluid, fluid_count) = runs[0.0], runs[default]
+    # some steps use the model (measured 176 of 269 in full at 1e-3, 263 at 1e-4: this route's keyframes
+    # are all young; on the demo 70 % of the evaluations are models, the factors that stay in the window longer)
     assert fluid_count < exact_count
     position, hitch = _errors(short_route, exact, frames[0])
     for one, other in zip(exact, fluid):
