@@ -50,7 +50,7 @@ def test_kitti_folder_is_a_stereo_source_with_landmark_ids():
     steps = list(itertools.islice(sequence.steps(), 3))
     for step in steps:
         left, right = step.observations.cameras["left"], step.observations.cameras["right"]
-        assert len(left) > 200 and len(right) > 0.5 * len(left)
+        assert len(left) > 200 and len(right) > 0.3 * len(left)       # matched within stereo.max_depth_m (25 m): about half
         np.testing.assert_array_equal(left.landmark_ids, left.track_ids)
         np.testing.assert_array_equal(right.landmark_ids, right.track_ids)
         assert np.all(np.isin(right.track_ids, left.track_ids))     # right "tracks" are the left ids
