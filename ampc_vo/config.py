@@ -408,7 +408,7 @@ class OutputConfig:
     write_timing: bool = True
     publish: str = "lagged"
     # latest: the keyframes of the start (the scale bootstrap's) are published once the newest
-    # keyframe's hitch sigma is at most this (or as they leave the window); null: at the bootstrap's end
+    # keyframe's hitch sigma is at most this, or smoother.lag_s after the bootstrap; null: at its end
     latest_start_hitch_sigma_deg: float | None = 1.0
 
     def validate(self, where: str) -> None:

@@ -147,6 +147,7 @@ class OdometryPipeline:
         self._statuses: dict[str, int] = {}
         self._bootstrapping = True
         self._deferring = False  # latest: the start's publication waits for the hitch (_publish_start_if_observed)
+        self._deferred_since = 0.0
         self._bootstrap: list[tuple[FrameObservations, TractorMotion | None]] = []
         self._bootstrap_speeds: list[float | None] = []  # measured metric speed of each bootstrap pair
         self._unscaled_frames = 0  # bootstrap keyframes dropped: their speed was never measured
@@ -316,6 +317,7 @@ class OdometryPipeline:
         buffered, self._bootstrap = self._bootstrap, []
         self._bootstrapping = False
         self._deferring = latest
+        self._deferred_since = buffered[-1][0].timestamp  # the bootstrap's end: latest waits at most lag_s from here
         self._last_keyframe = buffered[0][0]
         published: list[KeyframeEstimate] = []
         for (previous, _), (frame, tractor) in zip(buffered, buffered[1:]):
@@ -336,19 +338,24 @@ class OdometryPipeline:
     def _publish_start_if_observed(self) -> list[KeyframeEstimate]:
         """With ``output.publish: latest``, the start's keyframes (the scale bootstrap's, and those
         after it while the hitch is not yet observed) wait until the newest keyframe's hitch sigma
-        is at most ``output.latest_start_hitch_sigma_deg``: then the window is published with its
-        estimate (:meth:`ArticulatedSmoother.publish_window`) and publication is causal from there
-        on; until then keyframes are published as they leave the window (lagged). A standing start
-        measures the hitch only as it drives off: at the end of the bootstrap (a reversing start
-        parked at -35 deg: after 0.17 m) the window's hitch was 3 deg off with a sigma of 8.5 deg,
-        honest but no use for a jack-knife warning; 0.5 s later it is known to a degree (DESIGN 11,
-        "Latest publication after the scale bootstrap"). Without a hitch sigma (no trailer, mode
-        separate, marginals off) or with the threshold null: at once. Returns what it published."""
+        is at most ``output.latest_start_hitch_sigma_deg``, or at most ``smoother.lag_s`` after the
+        bootstrap's end (latest output lags by no more than the window): then the window is
+        published with its estimate (:meth:`ArticulatedSmoother.publish_window`) and publication is
+        causal from there on; until then keyframes are published as they leave the window (lagged).
+        A standing start measures the hitch only as it drives off: at the end of the bootstrap (a
+        reversing start parked at -35 deg: after 0.17 m) the window's hitch was 3 deg off with a
+        sigma of 8.5 deg, honest but no use for a jack-knife warning; 1.5 s later it is known to a
+        degree (DESIGN 11, "The hitch is held at a standstill"). Without a hitch sigma (no trailer,
+        mode separate, marginals off) or with the threshold null: at once. Returns what it published."""
         threshold = self.config.output.latest_start_hitch_sigma_deg
         window = self.smoother.window_indices()
         sigma = self.smoother.hitch_sigma(window[-1]) if window else None
         if threshold is not None and sigma is not None and sigma > np.radians(threshold):
-            return []
+            waited = self._last_keyframe.timestamp - self._deferred_since
+            if waited < self.config.smoother.lag_s:
+                return []
+            logger.info("frame %d: hitch angle not measured to %.1f deg within the lag (sigma %.1f deg): latest publication starts",
+                        self._last_keyframe.frame, threshold, np.degrees(sigma))
         self._deferring = False
         published = self.smoother.publish_window()
         self._after_publish(published)

@@ -249,28 +249,37 @@ def test_latest_publication_of_a_standing_start_waits_for_the_hitch(standing_sta
     """Issue 16 (latest hitch max): with ``output.publish: latest`` the start's keyframes are published
     once the newest keyframe's hitch sigma is at most ``output.latest_start_hitch_sigma_deg`` (null:
     when the scale bootstrap ends, with the sigma the hitch has then: 1.1 deg on this route, 8.5 deg
-    on a start parked at -35 deg that reverses); every keyframe is published once, in time order,
-    the same keyframes as in lagged mode, and causally (one per keyframe) after the first batch."""
+    on a start parked at -35 deg that reverses), or ``smoother.lag_s`` after the bootstrap's end if
+    the sigma never gets there; until then keyframes go out as they leave the window. Every keyframe
+    is published once, in time order, the same keyframes as in lagged mode, and causally (the newest
+    keyframe, one per batch) after the window's batch."""
     root, result = standing_start
     lagged_config = config_from_dict({"output": {"progress": False, "publish": "lagged"}})
+    lag = lagged_config.smoother.lag_s
     _, lagged = run_on_frames(result.rig, lagged_config, result.measurements.frames(result.rig))
-    first_batches = {}
-    for threshold_deg in (None, 0.5):
+    window_batches = {}
+    for threshold_deg in (None, 0.5, 1e-3):
         config = config_from_dict({"output": {"progress": False, "publish": "latest", "latest_start_hitch_sigma_deg": threshold_deg}})
         batches: list[tuple[float, list]] = []
 
         def record(frame, published):
-            if published:
-                batches.append((frame.timestamp if frame is not None else np.inf, published))
+            if published and frame is not None:
+                batches.append((frame.timestamp, published))
 
         _, estimates = run_on_frames(result.rig, config, result.measurements.frames(result.rig), on_frame=record)
         assert [estimate.timestamp for estimate in estimates] == [estimate.timestamp for estimate in lagged]
-        assert all(len(batch) == 1 for time, batch in batches[1:] if time < np.inf)
-        first_batches[threshold_deg] = batches[0]
-    (waited_until, waited), (bootstrap_end, at_bootstrap) = first_batches[0.5], first_batches[None]
+        # the window's batch is the first that includes the newest keyframe; before it only keyframes that left the window
+        first_causal = next(index for index, (time, batch) in enumerate(batches) if batch[-1].timestamp == time)
+        assert all(estimate.timestamp < time - lag + 1e-9 for time, batch in batches[:first_causal] for estimate in batch)
+        assert all(len(batch) == 1 and batch[0].timestamp == time for time, batch in batches[first_causal + 1:])
+        window_batches[threshold_deg] = batches[first_causal]
+    (waited_until, waited), (bootstrap_end, at_bootstrap) = window_batches[0.5], window_batches[None]
     assert np.degrees(at_bootstrap[-1].hitch_sigma) > 0.5
     assert np.degrees(waited[-1].hitch_sigma) <= 0.5 and waited_until > bootstrap_end and len(waited) > len(at_bootstrap)
     assert np.all(np.degrees([estimate.hitch_sigma for estimate in waited]) < 1.0)
+    # a sigma never reached: latest output waits at most the window's lag after the bootstrap
+    never_until, never = window_batches[1e-3]
+    assert np.degrees(never[-1].hitch_sigma) > 1e-3 and bootstrap_end + lag <= never_until < bootstrap_end + lag + 1.0
 
 
 def test_the_constant_velocity_prediction_keeps_the_direction_of_travel() -> None:
