@@ -307,12 +307,12 @@ class OdometryPipeline:
     def _replay_bootstrap(self, speed: float) -> list[KeyframeEstimate]:
         """Add the buffered bootstrap keyframes to the smoother, their unmeasured chords at ``speed``.
         Nothing was published while they waited for scale: with ``output.publish: latest`` they are
-        published now as in lagged mode, each when it leaves the window during the replay and the
-        rest with the window's estimate at its end (what an online user can have at this moment;
-        DESIGN 11, "Latest publication after the scale bootstrap"), not with the estimate each had
-        as the newest keyframe: a standing start's keyframes at rest then carry the hitch angle the
-        drive-off measured, and the first moving keyframe (a chord of a few centimetres) the next
-        ones' motion."""
+        published as in lagged mode, each when it leaves the window during the replay and the rest
+        with the window's estimate once the hitch is observed (:meth:`_publish_start_if_observed`,
+        at the replay's end or later; DESIGN 11, "The hitch is held at a standstill"), not with the
+        estimate each had as the newest keyframe: a standing start's keyframes at rest then carry
+        the hitch angle the drive-off measured, and the first moving keyframe (a chord of a few
+        centimetres) the next ones' motion."""
         latest = self.config.output.publish == "latest"
         buffered, self._bootstrap = self._bootstrap, []
         self._bootstrapping = False
