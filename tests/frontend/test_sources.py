@@ -59,6 +59,11 @@ def test_kitti_folder_is_a_stereo_source_with_landmark_ids():
             np.array([np.flatnonzero(left.track_ids == track)[0] for track in right.track_ids])
         assert np.median(np.abs(left.pixels[index_left, 1] - right.pixels[:, 1])) < 0.5
         assert np.all(left.pixels[index_left, 0] - right.pixels[:, 0] > 0)
+        # stereo points only within stereo.max_depth_m (configs/vo/kitti.yaml: far points bent the turn clip)
+        left_camera, right_camera = sequence.rig.camera("left"), sequence.rig.camera("right")
+        focal_baseline = left_camera.fx * np.linalg.norm(left_camera.center - right_camera.center)
+        depths = focal_baseline / (left.pixels[index_left, 0] - right.pixels[:, 0])
+        assert config.stereo.max_depth_m <= 30.0 and np.all(depths <= config.stereo.max_depth_m * 1.01)
         assert set(step.frontend.reports) == {"left"}              # the right camera is not tracked on its own
         assert len(step.frontend.stereo[("left", "right")]) == len(right)
     # tracks continue: most left ids of frame 1 are in frame 2, and so are their right matches
