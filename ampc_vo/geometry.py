@@ -7,6 +7,7 @@ tractor-frame points into the world. Relative motion of one body between views i
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ampc_vo.errors import BearingError
 
@@ -159,14 +160,8 @@ def pose_from_xyz_quat(row: ArrayF) -> ArrayF:
 
 
 def rotation_from_vector(vector: ArrayF) -> ArrayF:
-    """Rotation matrix of a rotation vector (axis times angle, radians): Rodrigues' formula
-    ``R = I + sin(a) K + (1 - cos(a)) K^2`` with ``K`` the skew matrix of the unit axis."""
-    vector = np.asarray(vector, dtype=float)
-    angle = float(np.linalg.norm(vector))
-    if angle < 1e-12:
-        return np.eye(3) + skew(vector)
-    axis = skew(vector / angle)
-    return np.eye(3) + np.sin(angle) * axis + (1.0 - np.cos(angle)) * axis @ axis
+    """Rotation matrix of a rotation vector (axis times angle, radians; SO(3) exp), SciPy's."""
+    return Rotation.from_rotvec(np.asarray(vector, dtype=float)).as_matrix()
 
 
 def rotation_angle(rotation: ArrayF) -> float:

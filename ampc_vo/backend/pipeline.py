@@ -313,10 +313,9 @@ class OdometryPipeline:
         estimate each had as the newest keyframe: a standing start's keyframes at rest then carry
         the hitch angle the drive-off measured, and the first moving keyframe (a chord of a few
         centimetres) the next ones' motion."""
-        latest = self.config.output.publish == "latest"
         buffered, self._bootstrap = self._bootstrap, []
         self._bootstrapping = False
-        self._deferring = latest
+        self._deferring = self.config.output.publish == "latest"
         self._deferred_since = buffered[-1][0].timestamp  # the bootstrap's end: latest waits at most lag_s from here
         self._last_keyframe = buffered[0][0]
         published: list[KeyframeEstimate] = []
@@ -331,7 +330,7 @@ class OdometryPipeline:
                 T_i_j[:3, 3] = direction * chord
                 tractor = TractorMotion(T_i_j, tractor.status, tractor.estimate, tractor.shared_tracks)
             published += self._add_keyframe(frame, tractor, elapsed, replay=True)
-        if latest:
+        if self._deferring:
             published += self._publish_start_if_observed()
         return published
 
@@ -356,6 +355,11 @@ class OdometryPipeline:
                 return []
             logger.info("frame %d: hitch angle not measured to %.1f deg within the lag (sigma %.1f deg): latest publication starts",
                         self._last_keyframe.frame, threshold, np.degrees(sigma))
+        return self._publish_deferred_start()
+
+    def _publish_deferred_start(self) -> list[KeyframeEstimate]:
+        """End the start's deferred publication: the window with its current estimate, written and
+        returned; causal publication from here on."""
         self._deferring = False
         published = self.smoother.publish_window()
         self._after_publish(published)
@@ -376,10 +380,7 @@ class OdometryPipeline:
                 self._unscaled_frames += len(self._bootstrap)
                 logger.warning("stream ended before any metric motion was measured: no poses for its last %d keyframes", len(self._bootstrap))
         if self._deferring:  # the hitch never observed at the start: what the window has
-            self._deferring = False
-            window = self.smoother.publish_window()
-            self._after_publish(window)
-            published += window
+            published += self._publish_deferred_start()
         remaining = self.smoother.flush()
         self._after_publish(remaining)
         wheel_scale = self.smoother.wheel_scale()
