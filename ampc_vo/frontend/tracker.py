@@ -263,8 +263,8 @@ def plane_warped_tracks(
 
     ``tracked``, ``good``: the first pass (:func:`track_forward_backward`) of ``previous_pixels``;
     ``on_plane`` (K,): the tracks in the plane's image region. The frame-to-frame homography ``H``
-    of the plane is fitted (RANSAC, ``plane_warp_threshold_px``) to the first pass's good plane
-    tracks; KLT then runs from the previous image warped by ``H`` to the current image, starting at
+    of the plane is fitted to the first pass's good plane tracks (:func:`road_homography`: RANSAC,
+    ``plane_warp_threshold_px``, passing over a plane that moves with the camera); KLT then runs from the previous image warped by ``H`` to the current image, starting at
     ``H p`` (``plane_warp_levels`` pyramid levels: the prediction is close). In the warped image the
     plane's patches have the current image's scale and shear, so the translation-only window model of
     KLT holds (it reads an expanding patch's flow short otherwise). A plane track the second pass
@@ -278,10 +278,8 @@ def plane_warped_tracks(
     fit = good & on_plane
     if fit.sum() < config.plane_warp_min_tracks:
         return tracked, good
-    homography, inliers = cv2.findHomography(
-        previous_pixels[fit].astype(np.float64), tracked[fit].astype(np.float64), cv2.RANSAC, config.plane_warp_threshold_px,
-    )
-    if homography is None or inliers is None or int(inliers.sum()) < config.plane_warp_min_tracks:
+    homography = road_homography(previous_pixels[fit].astype(np.float64), tracked[fit].astype(np.float64), config)
+    if homography is None:
         return tracked, good
     plane = np.flatnonzero(on_plane)
 
@@ -313,6 +311,30 @@ def plane_warped_tracks(
     tracked[plane[refined_good]] = refined[refined_good]
     good[plane[refined_good]] = True
     return tracked, good
+
+
+def road_homography(previous_pixels: np.ndarray, tracked: np.ndarray, config: TrackerConfig) -> np.ndarray | None:
+    """The frame-to-frame homography of the road among the road region's first-pass tracks
+    ``previous_pixels`` -> ``tracked`` (K, 2), or None (fewer than ``plane_warp_min_tracks``
+    inliers): RANSAC (``plane_warp_threshold_px``) finds the largest plane, which is not always the
+    road's. A surface moving with the camera covers the road region in some views: the trailer's
+    side in a mirror camera (motorway: two thirds of the mirror's road-region tracks, flowing 1 px
+    per frame against the road's 23 px), a vehicle keeping pace ahead. When the plane found barely
+    moves (its inliers' median flow within the threshold) while the rest streams past (median flow
+    beyond three thresholds), the road is the plane of the rest: RANSAC again on those."""
+    threshold = config.plane_warp_threshold_px
+    homography, inliers = cv2.findHomography(previous_pixels, tracked, cv2.RANSAC, threshold)
+    if homography is None or inliers is None or int(inliers.sum()) < config.plane_warp_min_tracks:
+        return None
+    inliers = inliers.ravel().astype(bool)
+    flow = np.linalg.norm(tracked - previous_pixels, axis=1)
+    rest = ~inliers
+    if rest.sum() >= config.plane_warp_min_tracks and np.median(flow[inliers]) <= threshold and np.median(flow[rest]) > 3.0 * threshold:
+        moving, moving_inliers = cv2.findHomography(previous_pixels[rest], tracked[rest], cv2.RANSAC, threshold)
+        if moving is None or moving_inliers is None or int(moving_inliers.sum()) < config.plane_warp_min_tracks:
+            return None  # no plane streams past: no second pass (the first pass stays)
+        return moving
+    return homography
 
 
 def image_gradients(gray: np.ndarray, scratch: ScratchArrays | None = None) -> np.ndarray:

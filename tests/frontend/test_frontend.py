@@ -536,6 +536,42 @@ def test_plane_warped_second_pass_reads_the_road_flow_at_motorway_speed():
     assert np.percentile(np.linalg.norm(warped[warped_good] - truth[warped_good], axis=1), 90) < 0.5
 
 
+def test_road_homography_passes_over_a_plane_that_moves_with_the_camera():
+    """A mirror camera's road region: the trailer's side (two thirds of the tracks) barely moves
+    between frames while the road streams past. RANSAC's largest plane is the trailer's; the road's
+    homography is the plane of the rest. Where the largest plane is the road, or nothing moves
+    (standstill), it is RANSAC's."""
+    from ampc_vo.frontend.tracker import road_homography
+
+    rng = np.random.default_rng(5)
+    config = TrackerConfig()
+    road_motion = np.array([[1.06, 0.02, -14.0], [0.01, 1.08, 9.0], [2e-5, 1.5e-4, 1.0]])  # a road plane's frame-to-frame homography
+
+    def moved(homography: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+        return cv2.perspectiveTransform(pixels.reshape(-1, 1, 2), homography).reshape(-1, 2)
+
+    trailer = rng.uniform([20, 250], [300, 470], (80, 2))
+    road = rng.uniform([320, 250], [620, 470], (40, 2))
+    previous = np.concatenate([trailer, road])
+    tracked = np.concatenate([trailer + rng.normal(0.0, 0.2, trailer.shape) + [0.4, 0.0], moved(road_motion, road) + rng.normal(0.0, 0.2, road.shape)])
+    assert np.median(np.linalg.norm(tracked[80:] - road, axis=1)) > 3.0 * config.plane_warp_threshold_px  # the road streams past
+    largest, _ = cv2.findHomography(previous, tracked, cv2.RANSAC, config.plane_warp_threshold_px)
+    assert np.median(np.linalg.norm(moved(largest, road) - tracked[80:], axis=1)) > 5.0    # RANSAC alone: the trailer
+    homography = road_homography(previous, tracked, config)
+    assert homography is not None
+    assert np.percentile(np.linalg.norm(moved(homography, road) - moved(road_motion, road), axis=1), 90) < 1.0
+
+    # the road as the largest plane: RANSAC's answer, the trailer's few tracks left out
+    few = np.concatenate([trailer[:15], road, rng.uniform([320, 250], [620, 470], (60, 2))])
+    few_tracked = np.concatenate([trailer[:15], moved(road_motion, few[15:])]) + rng.normal(0.0, 0.2, few.shape)
+    homography = road_homography(few, few_tracked, config)
+    assert np.percentile(np.linalg.norm(moved(homography, few[15:]) - moved(road_motion, few[15:]), axis=1), 90) < 1.0
+    # standstill: everything still, the identity
+    still = previous + rng.normal(0.0, 0.2, previous.shape)
+    homography = road_homography(previous, still, config)
+    assert np.max(np.linalg.norm(moved(homography, previous) - previous, axis=1)) < 1.0
+
+
 def test_road_mask_is_none_for_a_camera_at_road_level_or_looking_up():
     from ampc_vo.frontend.tracker import road_pixel_mask
     from ampc_vo.rig import camera_rotation
