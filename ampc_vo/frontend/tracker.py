@@ -264,9 +264,9 @@ def plane_warped_tracks(
     ``tracked``, ``good``: the first pass (:func:`track_forward_backward`) of ``previous_pixels``;
     ``on_plane`` (K,): the tracks in the plane's image region. The frame-to-frame homography ``H``
     of the plane is fitted to the first pass's good plane tracks (:func:`road_homography`: RANSAC,
-    ``plane_warp_threshold_px``, passing over a plane that moves with the camera); KLT then runs from the previous image warped by ``H`` to the current image, starting at
-    ``H p`` (``plane_warp_levels`` pyramid levels: the prediction is close). In the warped image the
-    plane's patches have the current image's scale and shear, so the translation-only window model of
+    ``plane_warp_threshold_px``, passing over a plane that moves with the camera); KLT then runs
+    from the previous image warped by ``H`` to the current image, starting at ``H p``
+    (``plane_warp_levels`` pyramid levels: the prediction is close). In the warped image the plane's patches have the current image's scale and shear, so the translation-only window model of
     KLT holds (it reads an expanding patch's flow short otherwise). A plane track the second pass
     tracks replaces the first pass's answer, also where the first pass lost it (near road points at
     speed), if it lands within ``plane_warp_threshold_px`` of the homography refitted to the second
@@ -313,6 +313,9 @@ def plane_warped_tracks(
     return tracked, good
 
 
+_STREAMING_THRESHOLDS = 3.0  # road_homography: the rest of the road region "streams past" beyond this many thresholds
+
+
 def road_homography(previous_pixels: np.ndarray, tracked: np.ndarray, config: TrackerConfig) -> np.ndarray | None:
     """The frame-to-frame homography of the road among the road region's first-pass tracks
     ``previous_pixels`` -> ``tracked`` (K, 2), or None (fewer than ``plane_warp_min_tracks``
@@ -329,7 +332,8 @@ def road_homography(previous_pixels: np.ndarray, tracked: np.ndarray, config: Tr
     inliers = inliers.ravel().astype(bool)
     flow = np.linalg.norm(tracked - previous_pixels, axis=1)
     rest = ~inliers
-    if rest.sum() >= config.plane_warp_min_tracks and np.median(flow[inliers]) <= threshold and np.median(flow[rest]) > 3.0 * threshold:
+    streaming = np.median(flow[rest]) > _STREAMING_THRESHOLDS * threshold if rest.sum() >= config.plane_warp_min_tracks else False
+    if streaming and np.median(flow[inliers]) <= threshold:
         moving, moving_inliers = cv2.findHomography(previous_pixels[rest], tracked[rest], cv2.RANSAC, threshold)
         if moving is None or moving_inliers is None or int(moving_inliers.sum()) < config.plane_warp_min_tracks:
             return None  # no plane streams past: no second pass (the first pass stays)
