@@ -10,8 +10,8 @@ Per camera, :class:`CameraTracker` runs, for every new image:
 2b. road tracks (inside :func:`road_pixel_mask`: rays that meet the calibrated road plane
    z = -hitch_height within ``plane_warp_range_m``) get a second KLT pass
    (:func:`plane_warped_tracks`): the previous image is warped by the frame-to-frame homography of
-   the road fitted to the first pass (:func:`road_homography`), and KLT runs from the warped image, so the road
-   patch no longer expands and shears between the two images. Translation-only KLT reads such a
+   the road fitted to the first pass (:func:`road_homography`), and KLT runs from the warped image,
+   so the road patch no longer expands and shears between the two images. Translation-only KLT reads such a
    patch's flow short (the ground-plane scale then comes out short: motorway 25 m/s, a cab camera's
    road flow 0.86-0.97 of the truth); it also recovers the near road tracks that move too far for
    the first pass. Tracks the second pass loses keep the first pass's answer (vehicles, kerbs);
@@ -266,8 +266,9 @@ def plane_warped_tracks(
     of the plane is fitted to the first pass's good plane tracks (:func:`road_homography`: MAGSAC++,
     ``plane_warp_threshold_px``, passing over a plane that moves with the camera); KLT then runs
     from the previous image warped by ``H`` to the current image, starting at ``H p``
-    (``plane_warp_levels`` pyramid levels: the prediction is close). In the warped image the plane's patches have the current image's scale and shear, so the translation-only window model of
-    KLT holds (it reads an expanding patch's flow short otherwise). A plane track the second pass
+    (``plane_warp_levels`` pyramid levels: the prediction is close). In the warped image the plane's
+    patches have the current image's scale and shear, so the translation-only window model of KLT
+    holds (it reads an expanding patch's flow short otherwise). A plane track the second pass
     tracks replaces the first pass's answer, also where the first pass lost it (near road points at
     speed), if it lands within ``plane_warp_threshold_px`` of the homography refitted to the second
     pass (on the plane); one it loses or that lands off the plane keeps the first pass's answer (a
@@ -302,10 +303,9 @@ def plane_warped_tracks(
     # region) keeps the first pass's answer
     near = refined_good & (np.linalg.norm(refined - predicted, axis=1) <= 4.0 * config.plane_warp_threshold_px)
     if near.sum() >= config.plane_warp_min_tracks:
-        refitted, _ = cv2.findHomography(previous_pixels[plane[near]].astype(np.float64), refined[near].astype(np.float64),
-                                         cv2.USAC_MAGSAC, config.plane_warp_threshold_px)
+        refitted = _plane_fit(previous_pixels[plane[near]].astype(np.float64), refined[near].astype(np.float64), config.plane_warp_threshold_px, 0)
         if refitted is not None:
-            predicted = moved(refitted)
+            predicted = moved(refitted[0])
     refined_good &= np.linalg.norm(refined - predicted, axis=1) <= config.plane_warp_threshold_px
     tracked, good = tracked.copy(), good.copy()
     tracked[plane[refined_good]] = refined[refined_good]
@@ -319,8 +319,8 @@ _STREAMING_THRESHOLDS = 3.0  # road_homography: the rest of the road region "str
 def road_homography(previous_pixels: np.ndarray, tracked: np.ndarray, config: TrackerConfig) -> np.ndarray | None:
     """The frame-to-frame homography of the road among the road region's first-pass tracks
     ``previous_pixels`` -> ``tracked`` (K, 2), or None (fewer than ``plane_warp_min_tracks``
-    inliers). A robust fit (``plane_warp_threshold_px``) finds the largest plane, which is not always the
-    road's. A surface moving with the camera covers the road region in some views: the trailer's
+    inliers). A robust fit (``plane_warp_threshold_px``) finds the largest plane, which is not
+    always the road's. A surface moving with the camera covers the road region in some views: the trailer's
     side in a mirror camera (motorway: two thirds of the mirror's road-region tracks, flowing 1 px
     per frame against the road's 23 px), a vehicle keeping pace ahead. When the plane found barely
     moves (its inliers' median flow within the threshold) while the rest streams past (median flow
@@ -331,20 +331,27 @@ def road_homography(previous_pixels: np.ndarray, tracked: np.ndarray, config: Tr
     the threshold) instead of counting the tracks within a hard threshold, so the near road tracks
     that the first pass read a few pixels short pull the fit less (realistic motorway on images: ATE
     0.63 -> 0.50 %, against plain RANSAC), at less cost (0.15 against 0.39 ms for 90 tracks)."""
-    threshold = config.plane_warp_threshold_px
-    homography, inliers = cv2.findHomography(previous_pixels, tracked, cv2.USAC_MAGSAC, threshold)
-    if homography is None or inliers is None or int(inliers.sum()) < config.plane_warp_min_tracks:
+    threshold, least = config.plane_warp_threshold_px, config.plane_warp_min_tracks
+    largest = _plane_fit(previous_pixels, tracked, threshold, least)
+    if largest is None:
         return None
-    inliers = inliers.ravel().astype(bool)
-    flow = np.linalg.norm(tracked - previous_pixels, axis=1)
+    homography, inliers = largest
     rest = ~inliers
-    streaming = np.median(flow[rest]) > _STREAMING_THRESHOLDS * threshold if rest.sum() >= config.plane_warp_min_tracks else False
-    if streaming and np.median(flow[inliers]) <= threshold:
-        moving, moving_inliers = cv2.findHomography(previous_pixels[rest], tracked[rest], cv2.USAC_MAGSAC, threshold)
-        if moving is None or moving_inliers is None or int(moving_inliers.sum()) < config.plane_warp_min_tracks:
-            return None  # no plane streams past: no second pass (the first pass stays)
-        return moving
+    if rest.sum() >= least:
+        flow = np.linalg.norm(tracked - previous_pixels, axis=1)
+        if np.median(flow[inliers]) <= threshold and np.median(flow[rest]) > _STREAMING_THRESHOLDS * threshold:
+            streaming = _plane_fit(previous_pixels[rest], tracked[rest], threshold, least)
+            return None if streaming is None else streaming[0]  # None: no plane streams past, the first pass stays
     return homography
+
+
+def _plane_fit(previous_pixels: np.ndarray, tracked: np.ndarray, threshold: float, least: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """MAGSAC++ homography (:func:`road_homography`) of ``previous_pixels`` -> ``tracked`` and its
+    inlier mask (K,), or None when it fails or has fewer than ``least`` inliers."""
+    homography, inliers = cv2.findHomography(previous_pixels, tracked, cv2.USAC_MAGSAC, threshold)
+    if homography is None or inliers is None or int(inliers.sum()) < least:
+        return None
+    return homography, inliers.ravel().astype(bool)
 
 
 def image_gradients(gray: np.ndarray, scratch: ScratchArrays | None = None) -> np.ndarray:
