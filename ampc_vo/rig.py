@@ -27,7 +27,8 @@ from ampc_vo.geometry import ROTATION_TOLERANCE, make_pose, quat_xyzw_from_rotat
 
 BODY_NAMES = ("tractor", "trailer")
 CAMERA_MODELS = ("pinhole", "fisheye")
-CAMERA_KEYS = ("name", "body", "model", "width", "height", "fx", "fy", "cx", "cy", "distortion", "T_body_camera", "readout_time", "topic")
+CAMERA_KEYS = ("name", "body", "model", "width", "height", "fx", "fy", "cx", "cy", "distortion", "T_body_camera", "readout_time", "topic",
+               "vignetting")
 RIG_KEYS = ("bodies", "cameras", "hitch_height")
 _NEWTON_ITERATIONS = 30
 _FISHEYE_MAX_THETA = np.deg2rad(100.0)
@@ -99,6 +100,10 @@ class Camera:
     readout_time: float = 0.0
     # where a recording carries this camera's images (ROS topic; None: our dataset folder)
     topic: str | None = None
+    # vignetting (photometric calibration): the lens passes 1 - vignetting (1 - cos^4 alpha) of the
+    # light at a pixel whose ray is alpha off the optical axis (0: none or not calibrated); the
+    # frontend divides it out before tracking (:meth:`relative_illumination`)
+    vignetting: float = 0.0
 
     # ------------------------------------------------------------------ convenience
     @property
@@ -118,6 +123,25 @@ class Camera:
             return np.zeros(pixels.shape[0])
         return self.readout_time * pixels[:, 1] / (self.height - 1)
 
+    def relative_illumination(self, step: int = 1) -> np.ndarray:
+        """(height, width) float32: the share of the light the lens passes at each pixel,
+        ``1 - vignetting (1 - cos^4 alpha)`` with ``alpha`` the angle of the pixel's ray to the
+        optical axis (the natural cos^4 fall-off scaled by the calibrated ``vignetting``; Ray,
+        *Applied Photographic Optics*, 2002, ch. 17); all ones without vignetting. With ``step`` > 1
+        it is computed every ``step`` pixels (and at the last row and column) and interpolated
+        bilinearly in between (the fall-off is smooth; un-projecting every pixel of a distorted
+        camera takes a few hundred milliseconds)."""
+        if self.vignetting <= 0.0:
+            return np.ones((self.height, self.width), np.float32)
+        sample_columns, sample_rows = _samples(self.width, step), _samples(self.height, step)
+        columns, rows = np.meshgrid(sample_columns, sample_rows)
+        rays = self.unproject(np.stack([columns.ravel(), rows.ravel()], axis=1))
+        cos_alpha = np.clip(rays[:, 2] / np.linalg.norm(rays, axis=1), 0.0, 1.0).reshape(columns.shape)
+        sampled = 1.0 - self.vignetting * (1.0 - cos_alpha**4)
+        if step > 1:
+            sampled = _linear_weights(self.height, sample_rows) @ sampled @ _linear_weights(self.width, sample_columns).T
+        return sampled.astype(np.float32)
+
     @property
     def K(self) -> np.ndarray:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
@@ -131,7 +155,7 @@ class Camera:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Camera):
             return NotImplemented
-        scalars = ("name", "body", "model", "width", "height", "fx", "fy", "cx", "cy", "readout_time", "topic")
+        scalars = ("name", "body", "model", "width", "height", "fx", "fy", "cx", "cy", "readout_time", "topic", "vignetting")
         return (
             all(getattr(self, key) == getattr(other, key) for key in scalars)
             and tuple(self.distortion) == tuple(other.distortion)
@@ -283,6 +307,24 @@ class Rig:
 
 
 # ---------------------------------------------------------------------- plausibility
+def _samples(size: int, step: int) -> np.ndarray:
+    """Pixel positions 0, step, 2 step, ... and the last one, ``size - 1`` (float)."""
+    return np.unique(np.append(np.arange(0, size, max(int(step), 1)), size - 1)).astype(float)
+
+
+def _linear_weights(size: int, samples: np.ndarray) -> np.ndarray:
+    """(size, len(samples)) weights of linear interpolation from the values at ``samples`` (ascending
+    pixel positions spanning 0..size-1) to every pixel 0..size-1."""
+    pixels = np.arange(size, dtype=float)
+    upper = np.clip(np.searchsorted(samples, pixels, side="right"), 1, len(samples) - 1)
+    lower = upper - 1
+    share = (pixels - samples[lower]) / (samples[upper] - samples[lower])
+    weights = np.zeros((size, len(samples)))
+    weights[np.arange(size), lower] = 1.0 - share
+    weights[np.arange(size), upper] += share
+    return weights
+
+
 def _radial_function(camera: Camera, radius: np.ndarray) -> np.ndarray:
     """The distorted normalised radius of an undistorted one: pinhole ``r (1 + k1 r^2 + k2 r^4 +
     k3 r^6)`` (r = tan of the incidence angle), fisheye ``theta_d(theta)`` (r = theta)."""
@@ -452,6 +494,9 @@ def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
         readout_time = _number(spec.get("readout_time", 0.0), where + "readout_time", source)
         if not 0.0 <= readout_time < 1.0:
             raise ConfigError(f"{source}: {where}readout_time: rolling-shutter readout must be in [0, 1) s, got {readout_time}")
+        vignetting = _number(spec.get("vignetting", 0.0), where + "vignetting", source)
+        if not 0.0 <= vignetting < 1.0:
+            raise ConfigError(f"{source}: {where}vignetting: the strength of the cos^4 fall-off must be in [0, 1), got {vignetting}")
         topic = spec.get("topic")
         if topic is not None and (not isinstance(topic, str) or not topic.strip()):
             raise ConfigError(f"{source}: {where}topic: expected a topic name, got {topic!r}")
@@ -464,7 +509,7 @@ def rig_from_dict(raw: Any, source: str = "rig") -> Rig:
                 fx=intrinsics["fx"], fy=intrinsics["fy"], cx=intrinsics["cx"], cy=intrinsics["cy"],
                 distortion=distortion,
                 T_body_camera=make_pose(rotation_from_quat_xyzw(quaternion), translation),
-                readout_time=readout_time, topic=topic,
+                readout_time=readout_time, topic=topic, vignetting=vignetting,
             )
         )
     names = [camera.name for camera in cameras]
@@ -519,6 +564,8 @@ def rig_to_dict(rig: Rig) -> dict:
             cameras[-1]["readout_time"] = float(camera.readout_time)
         if camera.topic is not None:
             cameras[-1]["topic"] = camera.topic
+        if camera.vignetting:
+            cameras[-1]["vignetting"] = float(camera.vignetting)
     bodies = {}
     for name, body in rig.bodies.items():
         bodies[name] = {"axle_x": float(body.axle_x)}

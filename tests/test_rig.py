@@ -190,6 +190,31 @@ def test_hitch_height_readout_time_and_topic_round_trip(tmp_path, default_rig):
     assert again.cameras[0] != replace_camera(again.cameras[0], readout_time=0.0)  # readout_time is part of equality
 
 
+def test_vignetting_round_trips_and_gives_the_cos4_fall_off(tmp_path, default_rig):
+    raw = rig_to_dict(default_rig)
+    raw["cameras"][0]["vignetting"] = 0.6
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(raw))
+    rig = load_rig(tmp_path / "rig.yaml")
+    assert rig.cameras[0].vignetting == 0.6 and rig.cameras[1].vignetting == 0.0
+    save_rig(rig, tmp_path / "again.yaml")
+    again = load_rig(tmp_path / "again.yaml")
+    assert [c.vignetting for c in again.cameras] == [c.vignetting for c in rig.cameras]
+    assert again.cameras[0] != replace_camera(again.cameras[0], vignetting=0.0)
+    camera = rig.cameras[0]
+    illumination = camera.relative_illumination()
+    assert illumination.shape == (camera.height, camera.width) and illumination.dtype == np.float32
+    for u, v in ((0, 0), (camera.width - 1, camera.height - 1), (100, 400)):  # pinhole: tan alpha from the pixel's offset
+        angle = np.arctan(np.hypot((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy))
+        assert illumination[v, u] == pytest.approx(1.0 - 0.6 * (1.0 - np.cos(angle) ** 4), rel=1e-5)
+    assert illumination.max() == pytest.approx(1.0, abs=1e-4)
+    np.testing.assert_allclose(camera.relative_illumination(step=8), illumination, atol=5e-4)  # sampled and interpolated
+    np.testing.assert_array_equal(rig.cameras[1].relative_illumination(), 1.0)
+    raw["cameras"][0]["vignetting"] = 1.0
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(raw))
+    with pytest.raises(ConfigError, match="vignetting: the strength of the cos\\^4 fall-off must be in"):
+        load_rig(tmp_path / "bad.yaml")
+
+
 @pytest.mark.parametrize("change, problem", [
     (lambda raw: raw.update(hitch_height=-0.5), "hitch_height: the king-pin's height above the road must be >= 0"),
     (lambda raw: raw.update(hitch_height="high"), "hitch_height: expected a number"),

@@ -41,6 +41,7 @@ from ampc_vo.io.frame_images import FrameImageReader
 from ampc_vo.errors import DatasetError
 from ampc_vo.frontend.multi_camera import camera_capture_times, FrontendResult, MultiCameraFrontend
 from ampc_vo.frontend.stereo import match_stereo_image, observations_with_stereo
+from ampc_vo.frontend.tracker import flat_field
 from ampc_vo.observations import FrameObservations
 from ampc_vo.rig import Rig
 from ampc_vo.frontend.worker import WorkerStartError, stream_in_process
@@ -177,6 +178,7 @@ def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, frames: rang
     (:func:`observations_with_stereo`), the cross-camera association the smoother's two-camera GEC
     and :mod:`ampc_vo.scale.stereo` use. About half the tracking cost of tracking both cameras."""
     seconds = {second for _, second in stereo_pairs}
+    flat_fields = {second: flat_field(rig.camera(second)) for second in seconds}
     tracked = dataclasses.replace(rig, cameras=tuple(camera for camera in rig.cameras if camera.name not in seconds))
     with MultiCameraFrontend(tracked, config.frontend, threads=config.threads) as frontend, FrameImageReader(dataset, frames, config.threads) as reader:
 
@@ -188,7 +190,7 @@ def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, frames: rang
             stereo = {}
             for first, second in stereo_pairs:
                 stereo[(first, second)] = match_stereo_image(frontend.trackers[first], images.get(second), result.observations.cameras[first],
-                                                             rig.camera(second), config.stereo)
+                                                             rig.camera(second), config.stereo, flat_fields[second])
             observations = observations_with_stereo(result.observations, stereo)
             return FrameStep(observations, images, FrontendResult(observations, result.reports, stereo), time.perf_counter() - started)
 

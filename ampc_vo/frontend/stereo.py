@@ -17,7 +17,7 @@ from ampc_vo.epipolar import gec_sampson
 from ampc_vo.geometry import invert_pose, triangulate_midpoint
 from ampc_vo.observations import CameraObservations, FrameObservations
 from ampc_vo.rig import Camera
-from ampc_vo.frontend.tracker import CameraTracker, as_gray_image, is_blank, track_forward_backward
+from ampc_vo.frontend.tracker import flat_field_corrected, CameraTracker, as_gray_image, is_blank, track_forward_backward
 
 logger = logging.getLogger(__name__)
 
@@ -80,10 +80,11 @@ def match_stereo(
 
 
 def match_stereo_image(tracker: CameraTracker, second_image: np.ndarray | None, first: CameraObservations, second_camera: Camera,
-                       config: StereoConfig | None = None) -> StereoMatches:
+                       config: StereoConfig | None = None, second_flat_field: np.ndarray | None = None) -> StereoMatches:
     """:func:`match_stereo` of a tracked camera's current features into the raw image of a second,
     untracked camera of the same frame (the second camera of a stereo pair is not tracked on its
-    own: its observations are the matches). A missing, blank or unusable second image gives no
+    own: its observations are the matches; ``second_flat_field``: its :func:`flat_field`, divided
+    out as the tracker divides out the first camera's). A missing, blank or unusable second image gives no
     matches (logged); an image of the wrong size raises :class:`DatasetError`."""
     if second_image is None or tracker.previous_image is None or len(first) == 0:
         return StereoMatches.empty(second_camera.name)
@@ -91,7 +92,7 @@ def match_stereo_image(tracker: CameraTracker, second_image: np.ndarray | None, 
     if is_blank(gray, tracker.config.min_contrast):
         logger.warning("camera %s: blank image, no stereo matches this frame", second_camera.name)
         return StereoMatches.empty(second_camera.name)
-    return match_stereo(tracker.previous_image, gray, first, tracker.camera, second_camera, config)
+    return match_stereo(tracker.previous_image, flat_field_corrected(gray, second_flat_field), first, tracker.camera, second_camera, config)
 
 
 def observations_with_stereo(observations: FrameObservations, stereo: dict[tuple[str, str], StereoMatches]) -> FrameObservations:

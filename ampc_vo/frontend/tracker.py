@@ -4,6 +4,8 @@ Per camera, :class:`CameraTracker` runs, for every new image:
 
 1. validation of the image (dtype, shape; :class:`~ampc_vo.errors.DatasetError` on bad input) and a
    blank-frame test (an all-black or flat image gives empty observations and a re-initialisation);
+1b. the lens's vignetting divided out (rig.yaml ``vignetting``, :func:`flat_field`): KLT assumes a
+   patch keeps its grey levels, which a patch moving towards a darker corner does not;
 2. KLT tracking (``cv2.calcOpticalFlowPyrLK``, image pyramids) of the previous features with a
    forward-backward check: a track survives if tracking it back lands within ``fb_threshold_px``
    of where it started (fisheye: it must also stay inside the valid image circle);
@@ -197,6 +199,27 @@ def road_pixel_mask(camera: Camera, road_z: float, max_range_m: float, step: int
         return None
     coarse = (road.reshape(len(rows), len(columns)) * 255).astype(np.uint8)
     return cv2.resize(coarse, (camera.width, camera.height), interpolation=cv2.INTER_NEAREST)
+
+
+def flat_field(camera: Camera) -> np.ndarray | None:
+    """The gain (H, W) float32 that divides a camera's vignetting out of its images (``1 /``
+    :meth:`~ampc_vo.rig.Camera.relative_illumination`), or None for a camera without vignetting.
+
+    KLT (``cv2.calcOpticalFlowPyrLK``) assumes a patch keeps its grey levels from one image to the
+    next; under vignetting a patch that moves towards the image's edge darkens, and the window
+    matches where the brightness, not only the texture, fits: the flow comes out biased, and so do
+    everything the tracks measure. The realistic fast motorway (29 m/s, ``vignetting`` 0.6) on raw
+    images: metric scale 1.011, ATE 0.35 % of the distance, the tractor cameras' yaw over a 15 degree
+    curve 61 % of the truth (tractor_only); divided out: scale 1.0015, ATE 0.08 % (DESIGN 4)."""
+    if camera.vignetting <= 0.0:
+        return None
+    return (1.0 / camera.relative_illumination(step=8)).astype(np.float32)  # smooth: sampled every 8 px (DESIGN 5)
+
+
+def flat_field_corrected(gray: np.ndarray, gain: np.ndarray | None) -> np.ndarray:
+    """``gray`` (uint8) times the :func:`flat_field` ``gain``, rounded and saturated to uint8
+    (unchanged for None)."""
+    return gray if gain is None else cv2.multiply(gray, gain, dtype=cv2.CV_8U)
 
 
 def is_blank(gray: np.ndarray, min_contrast: float) -> bool:
@@ -594,6 +617,7 @@ class CameraTracker:
         self._ids = np.zeros(0, np.int64)
         self._empty_cells_after_detection = 0
         self._valid_mask = valid_pixel_mask(camera, self.config.border_px)
+        self._flat_field = flat_field(camera)  # None without vignetting
         self._road_mask = (road_pixel_mask(camera, road_z, self.config.plane_warp_range_m)
                            if road_z is not None and self.config.plane_warp else None)
         self.last_report = TrackingReport()
@@ -645,6 +669,7 @@ class CameraTracker:
             return CameraObservations.empty(self.camera.name)
 
         clock = time.perf_counter()
+        gray = flat_field_corrected(gray, self._flat_field)
         with _timed(report.timings_ms, "aperture"):
             gradients = image_gradients(gray, self._scratch) if config.aperture_ratio > 0 else None  # the aperture test's, once per image
         pixels, ids = np.zeros((0, 2)), np.zeros(0, np.int64)

@@ -22,6 +22,7 @@ The layout (YAML; DESIGN section 1 frames)::
     cameras:
       cam0: {name: front, body: tractor, topic: /front/image}    # topic default: Kalibr's rostopic
       cam1: {name: rear, body: trailer, readout_time: 0.03}      # rolling shutter (s, default 0)
+      cam2: {name: left, body: tractor, vignetting: 0.4}         # lens fall-off (rig.yaml; default 0)
 
 A rolling-shutter camera's ``readout_time`` (first to last row, seconds) is not in the camchain:
 Kalibr's rolling-shutter calibration (``pinhole-radtan-rs``) prints a line delay, and
@@ -47,7 +48,7 @@ from ampc_vo.geometry import invert_pose, make_pose, quat_xyzw_from_rotation, ro
 from ampc_vo.rig import Rig, rig_from_dict, rig_to_dict
 
 LAYOUT_KEYS = ("reference", "T_vehicle_reference", "hitch", "hitch_height", "bodies", "cameras")
-LAYOUT_CAMERA_KEYS = ("name", "body", "topic", "readout_time")
+LAYOUT_CAMERA_KEYS = ("name", "body", "topic", "readout_time", "vignetting")
 DISTORTION_MODELS = {"radtan": ("pinhole", 4), "equidistant": ("fisheye", 4)}
 
 
@@ -182,7 +183,7 @@ def rig_from_kalibr(camchain: Any, layout: Any, camchain_source: str = "camchain
     for (name, spec), T_cam0_camera in zip(cameras, T_cam0_cam):
         entry = specs[name]
         if not isinstance(entry, dict) or "name" not in entry or "body" not in entry or set(entry) - set(LAYOUT_CAMERA_KEYS):
-            raise ConfigError(f"{layout_source}: cameras.{name}: expected {{name, body[, topic, readout_time]}}, got {entry!r}")
+            raise ConfigError(f"{layout_source}: cameras.{name}: expected {{name, body[, topic, readout_time, vignetting]}}, got {entry!r}")
         T_body_camera = T_tractor_cam0 @ T_cam0_camera  # trailer cameras too: calibrated at hitch angle 0
         topic = entry.get("topic", spec.get("rostopic"))
         camera = {"name": str(entry["name"]), "body": entry["body"], **_intrinsics(name, spec, camchain_source),
@@ -190,8 +191,9 @@ def rig_from_kalibr(camchain: Any, layout: Any, camchain_source: str = "camchain
                                     "quaternion": [float(v) for v in quat_xyzw_from_rotation(T_body_camera[:3, :3])]}}
         if topic is not None:
             camera["topic"] = str(topic)
-        if "readout_time" in entry:
-            camera["readout_time"] = entry["readout_time"]  # checked by rig_from_dict
+        for key in ("readout_time", "vignetting"):  # checked by rig_from_dict
+            if key in entry:
+                camera[key] = entry[key]
         rig_cameras.append(camera)
     raw = {"hitch_height": layout.get("hitch_height", 0.0), "bodies": layout["bodies"], "cameras": rig_cameras}
     return rig_from_dict(raw, source=f"{layout_source} + {camchain_source}")
@@ -231,8 +233,9 @@ def kalibr_from_rig(rig: Rig, reference: str | None = None) -> tuple[dict, dict]
             spec["T_cn_cnm1"] = (invert_pose(camera.T_body_camera) @ previous.T_body_camera).tolist()
         camchain[key] = spec
         layout_cameras[key] = {"name": camera.name, "body": camera.body}
-        if camera.readout_time:
-            layout_cameras[key]["readout_time"] = float(camera.readout_time)
+        for name in ("readout_time", "vignetting"):
+            if getattr(camera, name):
+                layout_cameras[key][name] = float(getattr(camera, name))
         previous = camera
     T_body_reference = rig.camera(reference).T_body_camera
     layout = {"reference": f"cam{rig.camera_names.index(reference)}",

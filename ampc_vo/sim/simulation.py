@@ -578,7 +578,8 @@ def simulate_dataset(config: SimulationConfig | str | Path, out_dir: str | Path,
             render_sequence(out_dir, result.rig, result.trajectory, result.scene, options=options, progress=progress,
                             **result.render_inputs())
             images_written = True
-    write_dataset(out_dir, rig_with_trailer_box(result.rig, result.config.trailer_body), result.trajectory.timestamps, groundtruth=result.trajectory,
+    rig = rig_with_vignetting(rig_with_trailer_box(result.rig, result.config.trailer_body), result.config.cameras)
+    write_dataset(out_dir, rig, result.trajectory.timestamps, groundtruth=result.trajectory,
                   measurements=result.measurements, with_images=images_written,
                   camera_timestamps=_stated_capture_times(result))
     from ampc_vo.sim.wheel_odometry import write_simulated_wheel_speed  # issue 15: wheel_speed.csv
@@ -586,6 +587,18 @@ def simulate_dataset(config: SimulationConfig | str | Path, out_dir: str | Path,
     write_simulated_wheel_speed(out_dir, result.trajectory, result.config.seed)
     LOGGER.info("dataset written to %s in %.1f s", out_dir, time.perf_counter() - started)
     return dataclasses.replace(result, images_written=images_written)
+
+
+def rig_with_vignetting(rig: Rig, camera_settings: "CameraSettingsTable | None") -> Rig:
+    """``rig`` whose cameras state the vignetting their images were rendered with (rig.yaml
+    ``vignetting``), as a user's photometric calibration states it; a camera whose rig already
+    gives one keeps it."""
+    from ampc_vo.sim.camera_settings import CameraSettingsTable, settings_for
+
+    settings = settings_for(camera_settings or CameraSettingsTable(), rig.camera_names)
+    cameras = tuple(camera if camera.vignetting or not item.vignetting else dataclasses.replace(camera, vignetting=float(item.vignetting))
+                    for camera, item in zip(rig.cameras, settings))
+    return dataclasses.replace(rig, cameras=cameras)
 
 
 def rig_with_trailer_box(rig: Rig, trailer_body: TrailerBodySpec | None) -> Rig:

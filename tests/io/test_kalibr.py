@@ -2,6 +2,8 @@
 reference camera's measured mount, the hitch, trailer cameras at hitch angle 0."""
 from __future__ import annotations
 
+import dataclasses
+
 import subprocess
 import sys
 from pathlib import Path
@@ -124,11 +126,12 @@ def test_a_reference_other_than_cam0_gives_the_same_rig():
 def test_a_rig_written_as_a_camchain_comes_back(rig_file):
     # the semitrailer: rolling-shutter cameras (the layout's readout_time) and the trailer's box
     rig = load_rig(ROOT / "configs" / "rigs" / rig_file)
+    rig = dataclasses.replace(rig, cameras=(dataclasses.replace(rig.cameras[0], vignetting=0.4),) + rig.cameras[1:])  # photometric calibration
     camchain, layout = kalibr_from_rig(rig, reference=rig.cameras[2].name)
     back = rig_from_kalibr(yaml.safe_load(yaml.safe_dump(camchain)), yaml.safe_load(yaml.safe_dump(layout)))
     for a, b in zip(rig.cameras, back.cameras):
         np.testing.assert_allclose(a.T_body_camera, b.T_body_camera, atol=1e-9)
-        assert (a.name, a.body, a.model, a.fx, a.cx, a.readout_time) == (b.name, b.body, b.model, b.fx, b.cx, b.readout_time)
+        assert (a.name, a.body, a.model, a.fx, a.cx, a.readout_time, a.vignetting) == (b.name, b.body, b.model, b.fx, b.cx, b.readout_time, b.vignetting)
     assert back.bodies == rig.bodies and back.hitch_height == rig.hitch_height
 
 

@@ -31,6 +31,7 @@ def test_camera_effects_route_end_to_end(tmp_path):
     dataset = read_dataset(tmp_path / "data")
     assert set(dataset.camera_timestamps) == set(result.rig.camera_names)   # every camera has an offset
     np.testing.assert_allclose(dataset.camera_timestamps["right"] - dataset.timestamps, 0.041, atol=0.004)
+    assert [camera.vignetting for camera in dataset.rig.cameras] == [0.6] * len(dataset.rig.cameras)  # rig.yaml states the lens fall-off
     assert np.any(result.measurements.landmark_body[result.measurements.landmark_id] >= 0)  # traffic / trailer tracks
     for source in ("images", "bearings"):
         vo = VoConfig(source=source)
