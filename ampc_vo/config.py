@@ -48,6 +48,10 @@ class TrackerConfig:
                                      # road points flow along lane markings in forward motion, so the flow and the ground-
                                      # plane chord came out short (motorway at 25 m/s: chord 0.60-0.92 of the truth)
     border_px: float = 4.0           # tracks closer than this to the image border are dropped
+    vignetting_fit_pairs: int = 40   # a camera whose rig.yaml gives no vignetting: its fall-off fitted to the tracks of
+                                     # this many image pairs, then divided out (0: never; frontend/vignetting.py)
+    vignetting_min_strength: float = 0.1  # a fitted strength below this is left in the images (at most 8 % darker at
+                                     # 50 degrees off axis; rendered images without vignetting fit 0.00-0.02)
     plane_warp: bool = True          # second KLT pass for road tracks through the road plane's homography (tracker.py
                                      # step 2b): translation-only KLT reads a road patch that expands and shears
                                      # between frames short (motorway 25 m/s, exact road-plane warp: 0.86-0.97 of the
@@ -81,6 +85,8 @@ class TrackerConfig:
             raise ConfigError(f"frontend: quality_level must be in (0, 1), got {self.quality_level}")
         if self.plane_warp_range_m <= 0.0 or self.plane_warp_threshold_px <= 0.0 or self.plane_warp_min_tracks < 4 or self.plane_warp_levels < 0:
             raise ConfigError("frontend: plane_warp_range_m and plane_warp_threshold_px must be positive, plane_warp_min_tracks >= 4, plane_warp_levels >= 0")
+        if self.vignetting_fit_pairs < 0 or not 0.0 <= self.vignetting_min_strength < 1.0:
+            raise ConfigError("frontend: vignetting_fit_pairs must be >= 0 and vignetting_min_strength in [0, 1)")
         if self.fb_threshold_px <= 0.0 or self.ransac_threshold_px <= 0.0 or self.min_distance_px <= 0.0:
             raise ConfigError("frontend: fb_threshold_px, ransac_threshold_px and min_distance_px must be positive")
 

@@ -43,7 +43,7 @@ from ampc_vo.frontend.multi_camera import camera_capture_times, FrontendResult, 
 from ampc_vo.frontend.stereo import match_stereo_image, observations_with_stereo
 from ampc_vo.frontend.tracker import flat_field
 from ampc_vo.observations import FrameObservations
-from ampc_vo.rig import Rig
+from ampc_vo.rig import Rig, replace_camera
 from ampc_vo.frontend.worker import WorkerStartError, stream_in_process
 
 if TYPE_CHECKING:  # evaluation (evo, SciPy) is not imported by the frontend's worker process
@@ -189,7 +189,11 @@ def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, frames: rang
                                                    camera_capture_times(dataset, frame))
             stereo = {}
             for first, second in stereo_pairs:
-                stereo[(first, second)] = match_stereo_image(frontend.trackers[first], images.get(second), result.observations.cameras[first],
+                tracker = frontend.trackers[first]
+                if flat_fields[second] is None and rig.camera(second).vignetting <= 0.0 and tracker.vignetting > 0.0:
+                    # the pair's second camera has the first's lens: its fitted fall-off (frontend/vignetting.py)
+                    flat_fields[second] = flat_field(replace_camera(rig.camera(second), vignetting=tracker.vignetting))
+                stereo[(first, second)] = match_stereo_image(tracker, images.get(second), result.observations.cameras[first],
                                                              rig.camera(second), config.stereo, flat_fields[second])
             observations = observations_with_stereo(result.observations, stereo)
             return FrameStep(observations, images, FrontendResult(observations, result.reports, stereo), time.perf_counter() - started)

@@ -5,7 +5,10 @@ Per camera, :class:`CameraTracker` runs, for every new image:
 1. validation of the image (dtype, shape; :class:`~ampc_vo.errors.DatasetError` on bad input) and a
    blank-frame test (an all-black or flat image gives empty observations and a re-initialisation);
 1b. the lens's vignetting divided out (rig.yaml ``vignetting``, :func:`flat_field`): KLT assumes a
-   patch keeps its grey levels, which a patch moving towards a darker corner does not;
+   patch keeps its grey levels, which a patch moving towards a darker corner does not. A camera
+   whose calibration gives none has its fall-off fitted to the grey levels of its first
+   ``vignetting_fit_pairs`` image pairs' inlier tracks (:mod:`ampc_vo.frontend.vignetting`), divided
+   out from then on when it is at least ``vignetting_min_strength``;
 2. KLT tracking (``cv2.calcOpticalFlowPyrLK``, image pyramids) of the previous features with a
    forward-backward check: a track survives if tracking it back lands within ``fb_threshold_px``
    of where it started (fisheye: it must also stay inside the valid image circle);
@@ -59,7 +62,8 @@ import numpy as np
 from ampc_vo.config import StereoConfig, TrackerConfig
 from ampc_vo.errors import DatasetError
 from ampc_vo.observations import CameraObservations
-from ampc_vo.rig import Camera
+from ampc_vo.frontend.vignetting import VignettingFit
+from ampc_vo.rig import Camera, replace_camera
 
 logger = logging.getLogger(__name__)
 
@@ -618,6 +622,10 @@ class CameraTracker:
         self._empty_cells_after_detection = 0
         self._valid_mask = valid_pixel_mask(camera, self.config.border_px)
         self._flat_field = flat_field(camera)  # None without vignetting
+        # no vignetting in the calibration: fitted to the first tracks (frontend/vignetting.py)
+        self._vignetting_fit = (VignettingFit(camera, self.config.vignetting_fit_pairs)
+                                if camera.vignetting <= 0.0 and self.config.vignetting_fit_pairs > 0 else None)
+        self._flat_field_from_now = False  # the fit has just given a flat field: store this frame's image with it
         self._road_mask = (road_pixel_mask(camera, road_z, self.config.plane_warp_range_m)
                            if road_z is not None and self.config.plane_warp else None)
         self.last_report = TrackingReport()
@@ -701,7 +709,7 @@ class CameraTracker:
                     report.edges = int((good & ~corner).sum())
                     good &= corner
                 pixels, ids = tracked[good], self._ids[good]
-                previous_bearings = self._bearings[good]
+                previous_bearings, previous_pixels = self._bearings[good], self._pixels[good]
         report.timings_ms["track"] = (time.perf_counter() - clock) * 1e3
 
         clock = time.perf_counter()
@@ -714,7 +722,9 @@ class CameraTracker:
             inliers = epipolar_inliers(previous_bearings, bearings, threshold, config.ransac_iterations, self._rng)
             report.rejected = int((~inliers).sum())
             report.rejected_pixels = pixels[~inliers]
-            pixels, ids, bearings = pixels[inliers], ids[inliers], bearings[inliers]
+            pixels, ids, bearings, previous_pixels = pixels[inliers], ids[inliers], bearings[inliers], previous_pixels[inliers]
+            if self._vignetting_fit is not None and self._vignetting_fit.strength is None:
+                self._fit_vignetting(previous_pixels, gray, pixels)
         if len(pixels):
             thinned = self._thin_crowded_cells(pixels, ids)
             pixels, ids, bearings = pixels[thinned], ids[thinned], bearings[thinned]
@@ -738,8 +748,33 @@ class CameraTracker:
             logger.warning("camera %s: no features found in frame", self.camera.name)
 
         self._pixels, self._bearings, self._ids = pixels, bearings, ids
-        self.previous_image = gray
+        self.previous_image = flat_field_corrected(gray, self._flat_field) if self._flat_field_from_now else gray
+        self._flat_field_from_now = False
         return CameraObservations(self.camera.name, ids.copy(), pixels.copy(), bearings)
+
+    @property
+    def vignetting(self) -> float:
+        """The vignetting strength divided out of this camera's images: the calibrated one, the
+        fitted one once fitted (0 when the fit stays below ``vignetting_min_strength``), else 0."""
+        if self.camera.vignetting > 0.0:
+            return self.camera.vignetting
+        strength = self._vignetting_fit.strength if self._vignetting_fit is not None else None
+        return strength if strength is not None and strength >= self.config.vignetting_min_strength else 0.0
+
+    def _fit_vignetting(self, previous_pixels: np.ndarray, gray: np.ndarray, pixels: np.ndarray) -> None:
+        """Feed this frame's inlier tracks to the vignetting fit; once it is fitted above
+        ``vignetting_min_strength``, divide it out from this frame's stored image on."""
+        strength = self._vignetting_fit.add(self.previous_image, previous_pixels, gray, pixels)
+        if strength is None:
+            return
+        if strength >= self.config.vignetting_min_strength:
+            self._flat_field = flat_field(replace_camera(self.camera, vignetting=strength))
+            self._flat_field_from_now = True
+            logger.info("camera %s: vignetting fitted to %d tracks: strength %.2f, divided out from here on",
+                        self.camera.name, self._vignetting_fit.tracks, strength)
+        else:
+            logger.info("camera %s: vignetting fitted to %d tracks: strength %.2f, below %.2f: left in the images",
+                        self.camera.name, self._vignetting_fit.tracks, strength, self.config.vignetting_min_strength)
 
     def _thin_crowded_cells(self, pixels: np.ndarray, ids: np.ndarray) -> np.ndarray:
         """Indices (in input order) of the tracks to keep: at most ``max_per_cell_factor`` times a

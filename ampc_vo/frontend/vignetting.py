@@ -1,0 +1,101 @@
+"""A camera's vignetting measured from its own tracks, for cameras whose calibration gives none
+(DESIGN 4, step 1b).
+
+A static, matte scene point keeps its radiance from frame to frame; what changes its grey level
+between two images is the exposure (one gain per image) and the lens: the share of light it passes
+at the point's pixel, ``V(alpha) = 1 - s (1 - cos^4 alpha)`` (the fall-off model of
+:meth:`ampc_vo.rig.Camera.relative_illumination`, ``alpha`` the ray's angle to the optical axis).
+For a track from pixel ``p`` to ``p'`` the log ratio of its patch's mean grey levels is
+``log I'(p') - log I(p) = e + log V_s(p') - log V_s(p) + noise`` with ``e`` the exposure change of
+that image pair. Tracks moving towards the edge darken, tracks moving inwards brighten: over a few
+dozen image pairs of any drive both occur, and the strength ``s`` is the one that explains them
+(the per-pair exposure ``e`` is the mean of each pair's residuals). This is the radial part of
+online photometric calibration (Bergmann, Wang, Cremers, "Online Photometric Calibration of Auto
+Exposure Video for Realtime Visual Odometry and SLAM", RA-L 2018), with the fall-off constrained to
+one parameter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ampc_vo.rig import Camera
+
+_STRENGTHS = np.linspace(0.0, 0.95, 96)  # the strengths tried (the fit is a 1-D search)
+_PATCH_PX = 47  # side of the box whose mean grey level a track carries: KLT places a track where its 15 px
+                # window's grey levels fit best, which moves it to take up part of the fall-off; over a box this
+                # much larger the mean hardly depends on that offset (fitted strength for a true 0.6, synthetic
+                # texture: box 7 px 0.00, 15 px 0.29, 31 px 0.54, 47 px 0.58; realistic motorway 0.56-0.63)
+_DARKEST, _BRIGHTEST = 12.0, 243.0  # patch means outside: clipped or too noisy in the log
+_LEAST_MOTION_PX = 2.0  # image pairs whose tracks moved less (median) are not used
+_TRIMMED_SHARE = 0.8   # the fit uses the 80 % of tracks the best strength explains best (moving objects, shadows, specular spots)
+
+
+def cos4_of_pixels(camera: Camera, pixels: np.ndarray) -> np.ndarray:
+    """``cos^4 alpha`` (N,) of pixels (N, 2): ``alpha`` the angle of each pixel's ray to the optical axis."""
+    rays = camera.unproject(np.asarray(pixels, float).reshape(-1, 2))
+    return np.clip(rays[:, 2] / np.linalg.norm(rays, axis=1), 0.0, 1.0) ** 4
+
+
+def patch_means(gray: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """Mean grey level (N,) of the ``_PATCH_PX`` square around each pixel (N, 2), bilinear between pixels."""
+    box = cv2.blur(gray.astype(np.float32), (_PATCH_PX, _PATCH_PX), borderType=cv2.BORDER_REPLICATE)
+    points = np.asarray(pixels, np.float32).reshape(-1, 1, 2)
+    return cv2.remap(box, points[..., 0], points[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel().astype(float)
+
+
+def fit_vignetting_strength(log_ratio: np.ndarray, cos4_before: np.ndarray, cos4_after: np.ndarray, pair: np.ndarray) -> float:
+    """The strength ``s`` in [0, 0.95] (module docstring) that best explains tracks' log grey-level
+    ratios ``log_ratio`` (N,) between their pixels' ``cos^4`` before and after (N,), ``pair`` (N,)
+    the index of each track's image pair (its own exposure change): the trimmed least squares over
+    a grid of strengths 0.01 apart."""
+    pair = np.unique(np.asarray(pair), return_inverse=True)[1]
+    counts = np.bincount(pair).astype(float)
+    strengths = _STRENGTHS[:, None]
+    residual = log_ratio[None] - (np.log1p(-strengths * (1.0 - cos4_after[None])) - np.log1p(-strengths * (1.0 - cos4_before[None])))
+    exposure = np.stack([np.bincount(pair, row, minlength=len(counts)) for row in residual]) / counts
+    squared = (residual - exposure[:, pair]) ** 2
+    kept = int(max(1, _TRIMMED_SHARE * squared.shape[1]))
+    cost = np.partition(squared, kept - 1, axis=1)[:, :kept].sum(axis=1)
+    return float(_STRENGTHS[int(np.argmin(cost))])
+
+
+@dataclass
+class VignettingFit:
+    """Collects one camera's track pairs (:meth:`add`) until ``pairs`` image pairs in motion have been seen,
+    then gives the fitted strength (:attr:`strength`; None before). Used by the tracker of a camera
+    whose calibration gives no vignetting."""
+
+    camera: Camera
+    pairs: int
+    strength: float | None = None
+    _log_ratio: list[np.ndarray] = field(default_factory=list)
+    _cos4_before: list[np.ndarray] = field(default_factory=list)
+    _cos4_after: list[np.ndarray] = field(default_factory=list)
+
+    @property
+    def tracks(self) -> int:
+        """Track pairs collected so far."""
+        return int(sum(len(part) for part in self._log_ratio))
+
+    def add(self, previous_gray: np.ndarray, previous_pixels: np.ndarray, gray: np.ndarray, pixels: np.ndarray) -> float | None:
+        """Add the tracks from ``previous_pixels`` in ``previous_gray`` to ``pixels`` (N, 2) in
+        ``gray`` (raw images: nothing divided out); returns the strength once fitted."""
+        if self.strength is not None or len(pixels) == 0:
+            return self.strength
+        if np.median(np.linalg.norm(np.asarray(pixels) - np.asarray(previous_pixels), axis=1)) < _LEAST_MOTION_PX:
+            return None  # at rest the tracks keep their pixels: no fall-off to see (a long standstill would fit noise)
+        before, after = patch_means(previous_gray, previous_pixels), patch_means(gray, pixels)
+        usable = (before > _DARKEST) & (before < _BRIGHTEST) & (after > _DARKEST) & (after < _BRIGHTEST)
+        if usable.sum() >= 10:  # a pair with fewer says little about its own exposure
+            self._log_ratio.append(np.log(after[usable] / before[usable]))
+            self._cos4_before.append(cos4_of_pixels(self.camera, np.asarray(previous_pixels)[usable]))
+            self._cos4_after.append(cos4_of_pixels(self.camera, np.asarray(pixels)[usable]))
+        if len(self._log_ratio) >= self.pairs:
+            pair = np.concatenate([np.full(len(part), index) for index, part in enumerate(self._log_ratio)])
+            self.strength = fit_vignetting_strength(np.concatenate(self._log_ratio), np.concatenate(self._cos4_before),
+                                                    np.concatenate(self._cos4_after), pair)
+        return self.strength
