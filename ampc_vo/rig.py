@@ -123,6 +123,12 @@ class Camera:
             return np.zeros(pixels.shape[0])
         return self.readout_time * pixels[:, 1] / (self.height - 1)
 
+    def cos4_off_axis(self, pixels: np.ndarray) -> np.ndarray:
+        """``cos^4 alpha`` (N,) of pixels (N, 2), ``alpha`` the angle of each pixel's ray to the
+        optical axis: the natural fall-off of :meth:`relative_illumination`."""
+        rays = self.unproject(np.asarray(pixels, dtype=float).reshape(-1, 2))
+        return np.clip(rays[:, 2] / np.linalg.norm(rays, axis=1), 0.0, 1.0) ** 4
+
     def relative_illumination(self, step: int = 1) -> np.ndarray:
         """(height, width) float32: the share of the light the lens passes at each pixel,
         ``1 - vignetting (1 - cos^4 alpha)`` with ``alpha`` the angle of the pixel's ray to the
@@ -135,9 +141,8 @@ class Camera:
             return np.ones((self.height, self.width), np.float32)
         sample_columns, sample_rows = _samples(self.width, step), _samples(self.height, step)
         columns, rows = np.meshgrid(sample_columns, sample_rows)
-        rays = self.unproject(np.stack([columns.ravel(), rows.ravel()], axis=1))
-        cos_alpha = np.clip(rays[:, 2] / np.linalg.norm(rays, axis=1), 0.0, 1.0).reshape(columns.shape)
-        sampled = 1.0 - self.vignetting * (1.0 - cos_alpha**4)
+        cos4 = self.cos4_off_axis(np.stack([columns.ravel(), rows.ravel()], axis=1)).reshape(columns.shape)
+        sampled = 1.0 - self.vignetting * (1.0 - cos4)
         if step > 1:
             sampled = _linear_weights(self.height, sample_rows) @ sampled @ _linear_weights(self.width, sample_columns).T
         return sampled.astype(np.float32)

@@ -190,7 +190,7 @@ def stereo_image_steps(dataset: object, rig: Rig, config: VoConfig, frames: rang
             stereo = {}
             for first, second in stereo_pairs:
                 tracker = frontend.trackers[first]
-                if flat_fields[second] is None and rig.camera(second).vignetting <= 0.0 and tracker.vignetting > 0.0:
+                if flat_fields[second] is None and tracker.vignetting > 0.0:
                     # the pair's second camera has the first's lens: its fitted fall-off (frontend/vignetting.py)
                     flat_fields[second] = flat_field(replace_camera(rig.camera(second), vignetting=tracker.vignetting))
                 stereo[(first, second)] = match_stereo_image(tracker, images.get(second), result.observations.cameras[first],

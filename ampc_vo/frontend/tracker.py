@@ -625,7 +625,6 @@ class CameraTracker:
         # no vignetting in the calibration: fitted to the first tracks (frontend/vignetting.py)
         self._vignetting_fit = (VignettingFit(camera, self.config.vignetting_fit_pairs)
                                 if camera.vignetting <= 0.0 and self.config.vignetting_fit_pairs > 0 else None)
-        self._flat_field_from_now = False  # the fit has just given a flat field: store this frame's image with it
         self._road_mask = (road_pixel_mask(camera, road_z, self.config.plane_warp_range_m)
                            if road_z is not None and self.config.plane_warp else None)
         self.last_report = TrackingReport()
@@ -717,14 +716,16 @@ class CameraTracker:
         report.timings_ms["unproject"] += (time.perf_counter() - clock) * 1e3
 
         clock = time.perf_counter()
+        stored = gray  # the image the next frame tracks from
         if len(pixels) >= config.min_tracks_for_ransac:
             threshold = config.ransac_threshold_px / max(self.camera.fx, self.camera.fy)
             inliers = epipolar_inliers(previous_bearings, bearings, threshold, config.ransac_iterations, self._rng)
             report.rejected = int((~inliers).sum())
             report.rejected_pixels = pixels[~inliers]
             pixels, ids, bearings, previous_pixels = pixels[inliers], ids[inliers], bearings[inliers], previous_pixels[inliers]
-            if self._vignetting_fit is not None and self._vignetting_fit.strength is None:
-                self._fit_vignetting(previous_pixels, gray, pixels)
+            fitting = self._vignetting_fit is not None and self._vignetting_fit.strength is None
+            if fitting and self._fit_vignetting(previous_pixels, gray, pixels):
+                stored = flat_field_corrected(gray, self._flat_field)  # tracked raw; the next frame's previous image without the fall-off
         if len(pixels):
             thinned = self._thin_crowded_cells(pixels, ids)
             pixels, ids, bearings = pixels[thinned], ids[thinned], bearings[thinned]
@@ -748,8 +749,7 @@ class CameraTracker:
             logger.warning("camera %s: no features found in frame", self.camera.name)
 
         self._pixels, self._bearings, self._ids = pixels, bearings, ids
-        self.previous_image = flat_field_corrected(gray, self._flat_field) if self._flat_field_from_now else gray
-        self._flat_field_from_now = False
+        self.previous_image = stored
         return CameraObservations(self.camera.name, ids.copy(), pixels.copy(), bearings)
 
     @property
@@ -761,20 +761,20 @@ class CameraTracker:
         strength = self._vignetting_fit.strength if self._vignetting_fit is not None else None
         return strength if strength is not None and strength >= self.config.vignetting_min_strength else 0.0
 
-    def _fit_vignetting(self, previous_pixels: np.ndarray, gray: np.ndarray, pixels: np.ndarray) -> None:
-        """Feed this frame's inlier tracks to the vignetting fit; once it is fitted above
-        ``vignetting_min_strength``, divide it out from this frame's stored image on."""
+    def _fit_vignetting(self, previous_pixels: np.ndarray, gray: np.ndarray, pixels: np.ndarray) -> bool:
+        """Feed this frame's inlier tracks to the vignetting fit; True when it has just been fitted
+        above ``vignetting_min_strength`` (``_flat_field`` then divides it out)."""
         strength = self._vignetting_fit.add(self.previous_image, previous_pixels, gray, pixels)
         if strength is None:
-            return
+            return False
         if strength >= self.config.vignetting_min_strength:
             self._flat_field = flat_field(replace_camera(self.camera, vignetting=strength))
-            self._flat_field_from_now = True
             logger.info("camera %s: vignetting fitted to %d tracks: strength %.2f, divided out from here on",
                         self.camera.name, self._vignetting_fit.tracks, strength)
-        else:
-            logger.info("camera %s: vignetting fitted to %d tracks: strength %.2f, below %.2f: left in the images",
-                        self.camera.name, self._vignetting_fit.tracks, strength, self.config.vignetting_min_strength)
+            return True
+        logger.info("camera %s: vignetting fitted to %d tracks: strength %.2f, below %.2f: left in the images",
+                    self.camera.name, self._vignetting_fit.tracks, strength, self.config.vignetting_min_strength)
+        return False
 
     def _thin_crowded_cells(self, pixels: np.ndarray, ids: np.ndarray) -> np.ndarray:
         """Indices (in input order) of the tracks to keep: at most ``max_per_cell_factor`` times a

@@ -34,15 +34,15 @@ _LEAST_MOTION_PX = 2.0  # image pairs whose tracks moved less (median) are not u
 _TRIMMED_SHARE = 0.8   # the fit uses the 80 % of tracks the best strength explains best (moving objects, shadows, specular spots)
 
 
-def cos4_of_pixels(camera: Camera, pixels: np.ndarray) -> np.ndarray:
-    """``cos^4 alpha`` (N,) of pixels (N, 2): ``alpha`` the angle of each pixel's ray to the optical axis."""
-    rays = camera.unproject(np.asarray(pixels, float).reshape(-1, 2))
-    return np.clip(rays[:, 2] / np.linalg.norm(rays, axis=1), 0.0, 1.0) ** 4
+def box_means(gray: np.ndarray) -> np.ndarray:
+    """Mean grey level (H, W) float32 of the ``_PATCH_PX`` square around every pixel."""
+    return cv2.blur(gray.astype(np.float32), (_PATCH_PX, _PATCH_PX), borderType=cv2.BORDER_REPLICATE)
 
 
-def patch_means(gray: np.ndarray, pixels: np.ndarray) -> np.ndarray:
-    """Mean grey level (N,) of the ``_PATCH_PX`` square around each pixel (N, 2), bilinear between pixels."""
-    box = cv2.blur(gray.astype(np.float32), (_PATCH_PX, _PATCH_PX), borderType=cv2.BORDER_REPLICATE)
+def patch_means(gray: np.ndarray, pixels: np.ndarray, box: np.ndarray | None = None) -> np.ndarray:
+    """Mean grey level (N,) of the ``_PATCH_PX`` square around each pixel (N, 2), bilinear between
+    pixels (``box``: :func:`box_means` of ``gray`` if already computed)."""
+    box = box_means(gray) if box is None else box
     points = np.asarray(pixels, np.float32).reshape(-1, 1, 2)
     return cv2.remap(box, points[..., 0], points[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel().astype(float)
 
@@ -75,6 +75,7 @@ class VignettingFit:
     _log_ratio: list[np.ndarray] = field(default_factory=list)
     _cos4_before: list[np.ndarray] = field(default_factory=list)
     _cos4_after: list[np.ndarray] = field(default_factory=list)
+    _last: tuple[np.ndarray, np.ndarray] | None = None  # the last image added and its box_means (the next pair's previous)
 
     @property
     def tracks(self) -> int:
@@ -88,14 +89,18 @@ class VignettingFit:
             return self.strength
         if np.median(np.linalg.norm(np.asarray(pixels) - np.asarray(previous_pixels), axis=1)) < _LEAST_MOTION_PX:
             return None  # at rest the tracks keep their pixels: no fall-off to see (a long standstill would fit noise)
-        before, after = patch_means(previous_gray, previous_pixels), patch_means(gray, pixels)
+        previous_box = self._last[1] if self._last is not None and self._last[0] is previous_gray else None
+        box = box_means(gray)
+        self._last = (gray, box)
+        before, after = patch_means(previous_gray, previous_pixels, previous_box), patch_means(gray, pixels, box)
         usable = (before > _DARKEST) & (before < _BRIGHTEST) & (after > _DARKEST) & (after < _BRIGHTEST)
         if usable.sum() >= 10:  # a pair with fewer says little about its own exposure
             self._log_ratio.append(np.log(after[usable] / before[usable]))
-            self._cos4_before.append(cos4_of_pixels(self.camera, np.asarray(previous_pixels)[usable]))
-            self._cos4_after.append(cos4_of_pixels(self.camera, np.asarray(pixels)[usable]))
+            self._cos4_before.append(self.camera.cos4_off_axis(np.asarray(previous_pixels)[usable]))
+            self._cos4_after.append(self.camera.cos4_off_axis(np.asarray(pixels)[usable]))
         if len(self._log_ratio) >= self.pairs:
             pair = np.concatenate([np.full(len(part), index) for index, part in enumerate(self._log_ratio)])
             self.strength = fit_vignetting_strength(np.concatenate(self._log_ratio), np.concatenate(self._cos4_before),
                                                     np.concatenate(self._cos4_after), pair)
+            self._last = None
         return self.strength

@@ -7,7 +7,7 @@ import pytest
 
 from ampc_vo.config import TrackerConfig
 from ampc_vo.frontend.tracker import CameraTracker
-from ampc_vo.frontend.vignetting import VignettingFit, cos4_of_pixels, fit_vignetting_strength, patch_means
+from ampc_vo.frontend.vignetting import VignettingFit, fit_vignetting_strength, patch_means
 from ampc_vo.rig import Camera
 from tests.frontend.test_frontend import HEIGHT, WIDTH, make_image, match_tracks, pinhole
 
@@ -28,9 +28,9 @@ def test_fit_recovers_the_strength_from_grey_level_ratios(strength):
     assert fit_vignetting_strength(log_ratio, cos4_before, cos4_after, pair) == pytest.approx(strength, abs=0.02)
 
 
-def test_cos4_and_patch_means():
+def test_cos4_off_axis_and_patch_means():
     camera = pinhole()
-    assert cos4_of_pixels(camera, np.array([[319.5, 239.5], [819.5, 239.5]])) == pytest.approx([1.0, 0.25])
+    assert camera.cos4_off_axis(np.array([[319.5, 239.5], [819.5, 239.5]])) == pytest.approx([1.0, 0.25])
     image = np.zeros((HEIGHT, WIDTH), np.uint8)
     image[:, 320:] = 100
     # a 47 px box: 24 of its columns lie right of the step at x = 320 (320 to 343)
