@@ -41,6 +41,11 @@ class TrackerConfig:
     lk_iterations: int = 20
     lk_epsilon: float = 0.03
     fb_threshold_px: float = 1.0     # forward-backward error above which a track is dropped
+    exposure_compensation: bool = True  # KLT refined against the previous image rescaled by the exposure change
+                                     # between the two images (tracker.exposure_ratio): KLT assumes equal grey levels
+    exposure_min_change: float = 0.01  # relative exposure change below which the first pass stands: the measure reads the
+                                     # scene's own brightness changes (perspective, resolution) in cameras looking along the
+                                     # motion as 0.1-0.7 % without any exposure change (tracker.exposure_ratio)
     aperture_ratio: float = 0.1      # aperture test (0: none): new features must be corners (structure tensor's smaller
                                      # eigenvalue >= this share of the larger) and a track is dropped where its window is
                                      # an edge along its motion (gradient energy along the motion < this share of the
@@ -87,6 +92,8 @@ class TrackerConfig:
             raise ConfigError("frontend: plane_warp_range_m and plane_warp_threshold_px must be positive, plane_warp_min_tracks >= 4, plane_warp_levels >= 0")
         if self.vignetting_fit_pairs < 0 or not 0.0 <= self.vignetting_min_strength < 1.0:
             raise ConfigError("frontend: vignetting_fit_pairs must be >= 0 and vignetting_min_strength in [0, 1)")
+        if not self.exposure_min_change >= 0.0:
+            raise ConfigError(f"frontend: exposure_min_change must be >= 0, got {self.exposure_min_change}")
         if self.fb_threshold_px <= 0.0 or self.ransac_threshold_px <= 0.0 or self.min_distance_px <= 0.0:
             raise ConfigError("frontend: fb_threshold_px, ransac_threshold_px and min_distance_px must be positive")
 
@@ -102,6 +109,8 @@ class StereoConfig:
     lk_iterations: int = 30
     lk_epsilon: float = 0.01
     fb_threshold_px: float = 1.0
+    exposure_compensation: bool = True   # the two cameras' exposures differ: as TrackerConfig
+    exposure_min_change: float = 0.01
     border_px: float = 0.0               # matches closer than this to the second image's border are dropped
     epipolar_threshold_px: float = 0.7   # Sampson GEC error of the known pair, pixels (rectified: row error / sqrt 2)
     min_depth_m: float = 1.0             # points closer than this (or behind) are rejected
