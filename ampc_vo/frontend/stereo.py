@@ -56,11 +56,12 @@ def match_stereo(
     """Find the first camera's features in the second (overlapping) camera's image of the same frame.
 
     KLT from the first to the second image (started at the same pixel, forward-backward checked,
-    compensated for the two cameras' exposure difference, ``exposure_compensation``: KITTI's
-    left and right images differ by 2-5 %), then two geometric tests with the known extrinsics ``T_first_second``: the Sampson GEC error
-    (``gec_sampson`` with R, t of the camera pair, paper eq. (1)) below ``epipolar_threshold_px``
-    (for a rectified pair this is the same-row test) and a triangulated depth within
-    ``[min_depth_m, max_depth_m]`` (cheirality). Images are uint8 grey of the same frame.
+    compensated for the two cameras' exposure difference, ``exposure_compensation``: KITTI's left
+    and right images differ by 2-5 %), then two geometric tests with the known extrinsics
+    ``T_first_second``: the Sampson GEC error (``gec_sampson`` with R, t of the camera pair, paper
+    eq. (1)) below ``epipolar_threshold_px`` (for a rectified pair this is the same-row test) and a
+    triangulated depth within ``[min_depth_m, max_depth_m]`` (cheirality). Images are uint8 grey of
+    the same frame.
     """
     config = config or StereoConfig()
     if len(first) == 0:
