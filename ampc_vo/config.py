@@ -42,10 +42,10 @@ class TrackerConfig:
     lk_epsilon: float = 0.03
     fb_threshold_px: float = 1.0     # forward-backward error above which a track is dropped
     exposure_compensation: bool = True  # KLT refined against the previous image rescaled by the exposure change
-                                     # between the two images (tracker.exposure_ratio): KLT assumes equal grey levels
+                                     # between the two images (vignetting.exposure_ratio): KLT assumes equal grey levels
     exposure_min_change: float = 0.01  # relative exposure change below which the first pass stands: the measure reads the
                                      # scene's own brightness changes (perspective, resolution) in cameras looking along the
-                                     # motion as 0.1-0.7 % without any exposure change (tracker.exposure_ratio)
+                                     # motion as 0.1-0.7 % without any exposure change (vignetting.exposure_ratio)
     aperture_ratio: float = 0.1      # aperture test (0: none): new features must be corners (structure tensor's smaller
                                      # eigenvalue >= this share of the larger) and a track is dropped where its window is
                                      # an edge along its motion (gradient energy along the motion < this share of the

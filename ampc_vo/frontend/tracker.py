@@ -13,7 +13,8 @@ Per camera, :class:`CameraTracker` runs, for every new image:
    forward-backward check: a track survives if tracking it back lands within ``fb_threshold_px``
    of where it started (fisheye: it must also stay inside the valid image circle); an exposure
    change between the two images beyond ``exposure_min_change`` is measured on the first pass's
-   tracks, and KLT runs again against the previous image rescaled by it (:func:`exposure_ratio`);
+   tracks (:func:`~ampc_vo.frontend.vignetting.exposure_ratio`), and KLT runs again against the
+   previous image rescaled by it;
 2b. road tracks (inside :func:`road_pixel_mask`: rays that meet the calibrated road plane
    z = -hitch_height within ``plane_warp_range_m``) get a second KLT pass
    (:func:`plane_warped_tracks`): the previous image is warped by the frame-to-frame homography of
@@ -64,7 +65,7 @@ import numpy as np
 from ampc_vo.config import StereoConfig, TrackerConfig
 from ampc_vo.errors import DatasetError
 from ampc_vo.observations import CameraObservations
-from ampc_vo.frontend.vignetting import VignettingFit
+from ampc_vo.frontend.vignetting import VignettingFit, exposure_ratio
 from ampc_vo.rig import Camera, replace_camera
 
 logger = logging.getLogger(__name__)
@@ -265,19 +266,11 @@ def track_forward_backward(
     start = np.ascontiguousarray(previous_pixels, dtype=np.float32).reshape(-1, 1, 2)
     ended, status_forward, _ = cv2.calcOpticalFlowPyrLK(previous_image, current_image, start, None, winSize=window, maxLevel=config.lk_levels, criteria=criteria)
     forward = ended.reshape(-1, 2).astype(float)
-    width, height = image_size
-    border = config.border_px
-    inside = (
-        (forward[:, 0] >= border) & (forward[:, 0] <= width - 1 - border)
-        & (forward[:, 1] >= border) & (forward[:, 1] <= height - 1 - border)
-    )
-    good = (status_forward.ravel() == 1) & inside & np.all(np.isfinite(forward), axis=1)
+    good = (status_forward.ravel() == 1) & _usable_ends(forward, image_size, config.border_px)
     if config.exposure_compensation and good.sum() >= _LEAST_EXPOSURE_TRACKS:
         previous_image, ended, tracked = _exposure_compensated(previous_image, current_image, start, ended, good, config)
         forward = ended.reshape(-1, 2).astype(float)
-        inside = ((forward[:, 0] >= border) & (forward[:, 0] <= width - 1 - border)
-                  & (forward[:, 1] >= border) & (forward[:, 1] <= height - 1 - border))
-        good = tracked & inside & np.all(np.isfinite(forward), axis=1)
+        good = tracked & _usable_ends(forward, image_size, config.border_px)
     if good.any():
         # The backward pass only for the tracks still in the running (KLT tracks every point on its
         # own, so theirs are the same); it starts at the original pixel, so a shallow pyramid
@@ -292,8 +285,14 @@ def track_forward_backward(
     return forward, good
 
 
+def _usable_ends(pixels: np.ndarray, image_size: tuple[int, int], border: float) -> np.ndarray:
+    """(K,) true where KLT's answer (K, 2) is finite and at least ``border`` px inside the image."""
+    width, height = image_size
+    inside = (pixels[:, 0] >= border) & (pixels[:, 0] <= width - 1 - border) & (pixels[:, 1] >= border) & (pixels[:, 1] <= height - 1 - border)
+    return inside & np.all(np.isfinite(pixels), axis=1)
+
+
 _LEAST_EXPOSURE_TRACKS = 8  # exposure_ratio: fewer tracks than this measure no exposure change
-_EXPOSURE_TRACKS = 100  # exposure_ratio: at most this many tracks (evenly spread over the list) measure it
 _EXPOSURE_ROUNDS = 2  # _exposure_compensated: at most this many rounds of measuring and tracking again
 
 
@@ -325,39 +324,6 @@ def _exposure_compensated(previous_image: np.ndarray, current_image: np.ndarray,
                                                     maxLevel=config.lk_levels, criteria=criteria)
         tracked = status.ravel() == 1
     return previous_image, ended, tracked
-
-
-def window_means(gray: np.ndarray, pixels: np.ndarray, window: float, samples: int) -> np.ndarray:
-    """Mean grey level (K,) of the ``window`` px square centred on each (sub-pixel) pixel (K, 2), read
-    on a ``samples`` x ``samples`` grid spread over it, interpolated bilinearly; the border replicated."""
-    offsets = np.linspace(-(window - 1) / 2.0, (window - 1) / 2.0, samples, dtype=np.float32)
-    pixels = np.asarray(pixels, np.float32)
-    columns = np.repeat(pixels[:, 0, None] + offsets, samples, axis=0).reshape(len(pixels), -1)  # (K, samples^2), rows of offsets
-    rows = np.repeat(pixels[:, 1, None] + offsets, samples, axis=1).reshape(len(pixels), -1)
-    patches = cv2.remap(gray, columns, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return patches.astype(np.float64).mean(axis=1)
-
-
-def exposure_ratio(previous_image: np.ndarray, current_image: np.ndarray, previous_pixels: np.ndarray, current_pixels: np.ndarray) -> float:
-    """The exposure change g between two images (current = g x previous in the grey levels) measured
-    on tracks ``previous_pixels`` -> ``current_pixels`` (K, 2): the median over (at most
-    ``_EXPOSURE_TRACKS`` of) the tracks of the ratio of the mean grey levels of a 47 px square around
-    them (:func:`window_means`). The square is much larger than KLT's window because KLT, under an
-    exposure change, takes part of it up into the track's position: over its own 15 px window a 2 %
-    change reads as 0.9-1.6 %, over 47 px as 1.9-2.0 % (the same in frontend/vignetting.py). The
-    median passes over moving objects, occlusions and the squares that saturate or are nearly black
-    (left out); 1.0 when no track is usable. One gain per image, as in the vignetting fit's model."""
-    step = max(1, len(previous_pixels) // _EXPOSURE_TRACKS)
-    before = window_means(previous_image, previous_pixels[::step], _EXPOSURE_BOX_PX, _EXPOSURE_BOX_SAMPLES)
-    after = window_means(current_image, current_pixels[::step], _EXPOSURE_BOX_PX, _EXPOSURE_BOX_SAMPLES)
-    usable = (before > _DARKEST_MEAN) & (after > _DARKEST_MEAN) & (before < _BRIGHTEST_MEAN) & (after < _BRIGHTEST_MEAN)
-    if not usable.any():
-        return 1.0
-    return float(np.exp(np.median(np.log(after[usable] / before[usable]))))
-
-
-_EXPOSURE_BOX_PX, _EXPOSURE_BOX_SAMPLES = 47, 12
-_DARKEST_MEAN, _BRIGHTEST_MEAN = 8.0, 240.0  # window means outside this range do not scale with the exposure
 
 
 def plane_warped_tracks(
