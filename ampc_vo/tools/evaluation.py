@@ -16,6 +16,14 @@ Metrics (issue 5, written to ``metrics.json``):
   drift). The ATE's SE(3) alignment can hide a drift in pitch (it tilts the whole estimate to fit
   the truth): the realistic motorway's estimate once pitched 0.6 deg per 100 m at 0.75 % ATE.
 * ``hitch_rmse_deg`` / ``hitch_max_deg``: error of the hitch angle (wrapped difference).
+* ``hitch_cornering_rmse_deg`` / ``hitch_cornering_within_2sigma``: the same and the share within
+  2 sigma over the keyframes where the truth corners at ``|a| >= CORNERING_MPS2`` (the lateral
+  acceleration ``a = |v| yaw rate`` of the tractor, :func:`lateral_accelerations`); ``None`` with
+  fewer than ``_LEAST_CORNERING`` such keyframes.
+* ``hitch_error_per_lateral_acceleration``: slope (deg per m/s^2) of the least-squares line of the
+  signed hitch error over ``a`` on the keyframes where the truck moves: a hitch that follows an
+  unmodelled tyre slip (its angle grows with ``a``, outward) errs in proportion to ``a``, which the
+  RMSE mixes with everything else (the fast motorway check world on images: +0.44 deg per m/s^2).
 * ``seconds_per_frame``: wall time per input frame of the run (from ``timing.json`` or given).
 
 Estimates may be sparser than the truth (keyframes only): they are associated by timestamp.
@@ -45,6 +53,10 @@ logger = logging.getLogger(__name__)
 
 RPE_SEGMENT_M = 10.0
 ROTATION_DRIFT_SEGMENT_M = 100.0
+CORNERING_MPS2 = 0.5        # lateral acceleration (m/s^2) from which a keyframe counts as cornering
+_LEAST_CORNERING = 10       # keyframes needed for the cornering figures and the slope
+_MOVING_MPS = 1.0           # the slope's keyframes: the truck moves at least this fast (m/s)
+_LEAST_SPREAD_MPS2 = 0.1    # ... and their lateral accelerations spread at least this much (std)
 
 
 @dataclass(frozen=True)
@@ -67,6 +79,9 @@ class Metrics:
     hitch_within_3sigma: float | None = None
     hitch_sigma_median_deg: float | None = None
     tractor_rotation_drift_deg_per_100m: float | None = None
+    hitch_cornering_rmse_deg: float | None = None
+    hitch_cornering_within_2sigma: float | None = None
+    hitch_error_per_lateral_acceleration: float | None = None
 
     def to_dict(self) -> dict:
         return {key: _json_number(value) for key, value in asdict(self).items()}
@@ -202,6 +217,34 @@ def hitch_matches(estimate: HitchSeries, truth_timestamps: np.ndarray, truth_ang
     return np.asarray(wrap_angle(estimate.angles[matched] - truth_angles[order][nearest[matched]]), dtype=float), matched
 
 
+def lateral_accelerations(timestamps: np.ndarray, T_world_tractor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(a, speed)`` (N,) of the tractor at each truth sample: its lateral acceleration ``|v| yaw
+    rate`` (m/s^2, positive turning left, by central differences of the horizontal path and the
+    unwrapped yaw) and its speed (m/s); zeros for fewer than 3 samples."""
+    if len(timestamps) < 3:
+        return np.zeros(len(timestamps)), np.zeros(len(timestamps))
+    positions = T_world_tractor[:, :2, 3]
+    velocity = np.gradient(positions, timestamps, axis=0)
+    yaw = np.unwrap(np.arctan2(T_world_tractor[:, 1, 0], T_world_tractor[:, 0, 0]))
+    speed = np.hypot(velocity[:, 0], velocity[:, 1])
+    return speed * np.gradient(yaw, timestamps), speed
+
+
+def cornering_figures(errors: np.ndarray, sigmas: np.ndarray, lateral: np.ndarray, speed: np.ndarray) -> tuple[float | None, float | None, float | None]:
+    """``(RMSE deg, share within 2 sigma, slope deg per m/s^2)`` of hitch ``errors`` (radians) with
+    their ``sigmas`` at keyframes of lateral acceleration ``lateral`` and ``speed`` (module
+    docstring; ``None`` where too few keyframes qualify)."""
+    cornering = np.abs(lateral) >= CORNERING_MPS2
+    rmse = within = slope = None
+    if np.count_nonzero(cornering) >= _LEAST_CORNERING:
+        rmse = float(np.degrees(np.sqrt(np.mean(errors[cornering] ** 2))))
+        within = sigma_coverage(errors[cornering], sigmas[cornering], 2.0)
+    moving = speed >= _MOVING_MPS
+    if np.count_nonzero(moving) >= _LEAST_CORNERING and np.std(lateral[moving]) >= _LEAST_SPREAD_MPS2:
+        slope = float(np.degrees(np.polyfit(lateral[moving], errors[moving], 1)[0]))
+    return rmse, within, slope
+
+
 def evaluate(
     truth: GroundTruth,
     tractor: Trajectory,
@@ -236,6 +279,7 @@ def evaluate(
         trailer_est_xy, trailer_truth_xy = trailer_est.positions_xyz[:, :2], trailer_ref.positions_xyz[:, :2]
 
     hitch_rmse = hitch_max = within_2 = within_3 = sigma_median = None
+    cornering_rmse = cornering_within = slope = None
     if hitch is not None and len(hitch) > 0 and truth.hitch_angles is not None:
         errors, matched = hitch_matches(hitch, truth.timestamps, truth.hitch_angles, max_time_diff)
         if errors.size:
@@ -244,6 +288,11 @@ def evaluate(
             sigmas = hitch.sigmas[matched]
             within_2, within_3 = sigma_coverage(errors, sigmas, 2.0), sigma_coverage(errors, sigmas, 3.0)
             sigma_median = float(np.degrees(np.median(sigmas)))
+            lateral, speed = lateral_accelerations(truth.timestamps, truth.T_world_tractor)
+            order = np.argsort(truth.timestamps)
+            at = hitch.timestamps[matched]
+            cornering_rmse, cornering_within, slope = cornering_figures(
+                errors, sigmas, np.interp(at, truth.timestamps[order], lateral[order]), np.interp(at, truth.timestamps[order], speed[order]))
 
     result = Metrics(
         frames=int(ref.num_poses),
@@ -260,6 +309,9 @@ def evaluate(
         hitch_within_3sigma=within_3,
         hitch_sigma_median_deg=sigma_median,
         tractor_rotation_drift_deg_per_100m=rotation_drift,
+        hitch_cornering_rmse_deg=cornering_rmse,
+        hitch_cornering_within_2sigma=cornering_within,
+        hitch_error_per_lateral_acceleration=slope,
     )
     return Evaluation(
         metrics=result,

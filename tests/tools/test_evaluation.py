@@ -204,3 +204,55 @@ def test_evaluate_script_rejects_nonsense_options(tmp_path):
     for option, value in (("--max-time-diff", "-1"), ("--seconds-per-frame", "0")):
         run = subprocess.run([sys.executable, str(script), str(tmp_path), str(tmp_path), option, value], capture_output=True, text=True, timeout=120)
         assert run.returncode == 2 and f"{option} must be > 0" in run.stderr
+
+
+def _circle(speed: float, radius: float, count: int = 200) -> GroundTruth:
+    """A drive at ``speed`` (m/s, 10 Hz) round a circle of ``radius`` (m; centre on the left when positive)."""
+    times = np.arange(count) * 0.1
+    heading = speed * times / radius
+    xy = np.stack([radius * np.sin(heading), radius * (1.0 - np.cos(heading))], axis=1)
+    tractor = np.array([planar_pose(x, y, a) for (x, y), a in zip(xy, heading)])
+    return GroundTruth(times, tractor, None, np.zeros(count))
+
+
+@pytest.mark.parametrize("speed, radius", [(25.0, 700.0), (8.0, -30.0)])
+def test_lateral_acceleration_of_a_circle(speed, radius):
+    from ampc_vo.tools.evaluation import lateral_accelerations
+
+    truth = _circle(speed, radius)
+    lateral, moving = lateral_accelerations(truth.timestamps, truth.T_world_tractor)
+    np.testing.assert_allclose(lateral[1:-1], speed**2 / radius, rtol=1e-3)  # v^2 / R, left positive
+    np.testing.assert_allclose(moving[1:-1], speed, rtol=1e-3)
+
+
+def test_a_hitch_error_in_proportion_to_the_lateral_acceleration():
+    """The S-curve route driven at 25 m/s (lateral acceleration up to 1.7 m/s^2) with a hitch that
+    errs by 0.4 deg per m/s^2 of lateral acceleration, as one following an unmodelled tyre slip:
+    the slope reads 0.4, and the cornering figures cover the keyframes beyond CORNERING_MPS2 only."""
+    from ampc_vo.tools.evaluation import CORNERING_MPS2, lateral_accelerations
+
+    times, tractor, trailer = _route(step=2.5)          # 25 m/s
+    truth = GroundTruth(times, tractor, trailer, 0.1 + 0.2 * np.sin(times))
+    lateral, _ = lateral_accelerations(times, tractor)
+    assert np.abs(lateral).max() > 2 * CORNERING_MPS2 and np.mean(np.abs(lateral) >= CORNERING_MPS2) > 0.2
+    error = np.radians(0.4) * lateral
+    sigma = np.full(len(times), np.radians(0.1))
+    result = evaluate(truth, Trajectory(times, tractor), None, HitchSeries(times, truth.hitch_angles + error, sigma)).metrics
+    assert result.hitch_error_per_lateral_acceleration == pytest.approx(0.4, rel=1e-6)
+    cornering = np.abs(lateral) >= CORNERING_MPS2
+    assert result.hitch_cornering_rmse_deg == pytest.approx(np.degrees(np.sqrt(np.mean(error[cornering] ** 2))), rel=1e-6)
+    assert result.hitch_cornering_within_2sigma == pytest.approx(np.mean(np.abs(error[cornering]) <= 2 * sigma[cornering]), abs=1e-12)
+    assert result.hitch_cornering_within_2sigma < 0.5                          # errors of 0.2-0.5 deg at 0.1 deg sigma
+    # an error that does not follow the lateral acceleration has no slope
+    flat = evaluate(truth, Trajectory(times, tractor), None, HitchSeries(times, truth.hitch_angles + np.radians(0.3), sigma)).metrics
+    assert abs(flat.hitch_error_per_lateral_acceleration) < 1e-9
+
+
+def test_straight_driving_has_no_cornering_figures():
+    times = np.arange(100) * 0.1
+    tractor = np.array([planar_pose(25.0 * t, 0.0, 0.0) for t in times])
+    truth = GroundTruth(times, tractor, None, np.zeros(100))
+    result = evaluate(truth, Trajectory(times, tractor), None, HitchSeries(times, np.full(100, 0.01), np.full(100, 0.01))).metrics
+    assert result.hitch_rmse_deg is not None
+    assert result.hitch_cornering_rmse_deg is None and result.hitch_cornering_within_2sigma is None
+    assert result.hitch_error_per_lateral_acceleration is None
