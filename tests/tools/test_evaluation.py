@@ -220,9 +220,9 @@ def test_lateral_acceleration_of_a_circle(speed, radius):
     from ampc_vo.tools.evaluation import lateral_accelerations
 
     truth = _circle(speed, radius)
-    lateral, moving = lateral_accelerations(truth.timestamps, truth.T_world_tractor)
+    lateral, speed_read = lateral_accelerations(truth.timestamps, truth.T_world_tractor)
     np.testing.assert_allclose(lateral[1:-1], speed**2 / radius, rtol=1e-3)  # v^2 / R, left positive
-    np.testing.assert_allclose(moving[1:-1], speed, rtol=1e-3)
+    np.testing.assert_allclose(speed_read[1:-1], speed, rtol=1e-3)
 
 
 def test_a_hitch_error_in_proportion_to_the_lateral_acceleration():
