@@ -93,6 +93,11 @@ def yaw_of(rotation: ArrayF) -> float:
     return float(np.arctan2(rotation[1, 0], rotation[0, 0]))
 
 
+def yaws_of(rotations: ArrayF) -> ArrayF:
+    """Headings (N,) of a stack of rotation matrices or 4x4 poses (N, 3, 3) / (N, 4, 4): :func:`yaw_of` of each."""
+    return np.arctan2(rotations[:, 1, 0], rotations[:, 0, 0])
+
+
 def transform_points(pose: ArrayF, points: ArrayF) -> ArrayF:
     """Apply a 4x4 pose to (N, 3) points: ``R p + t``."""
     points = np.asarray(points, dtype=float)

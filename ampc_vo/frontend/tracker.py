@@ -264,9 +264,9 @@ def track_forward_backward(
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, config.lk_iterations, config.lk_epsilon)
     window = (config.lk_window, config.lk_window)
     start = np.ascontiguousarray(previous_pixels, dtype=np.float32).reshape(-1, 1, 2)
-    ended, status_forward, _ = cv2.calcOpticalFlowPyrLK(previous_image, current_image, start, None, winSize=window, maxLevel=config.lk_levels, criteria=criteria)
+    ended, tracked = _klt_forward(previous_image, current_image, start, config)
     forward = ended.reshape(-1, 2).astype(float)
-    good = (status_forward.ravel() == 1) & _usable_ends(forward, image_size, config.border_px)
+    good = tracked & _usable_ends(forward, image_size, config.border_px)
     if config.exposure_compensation and good.sum() >= _LEAST_EXPOSURE_TRACKS:
         previous_image, ended, tracked = _exposure_compensated(previous_image, current_image, start, ended, good, config)
         forward = ended.reshape(-1, 2).astype(float)
@@ -283,6 +283,16 @@ def track_forward_backward(
         fb_error = np.linalg.norm(backward.reshape(-1, 2) - returning.reshape(-1, 2), axis=1)
         good[good] = (status_backward.ravel() == 1) & (fb_error < config.fb_threshold_px)
     return forward, good
+
+
+def _klt_forward(previous_image: np.ndarray, current_image: np.ndarray, start: np.ndarray,
+                 config: "TrackerConfig | StereoConfig") -> tuple[np.ndarray, np.ndarray]:
+    """KLT's forward pass of ``start`` (K, 1, 2) float32 with the config's window, pyramid and
+    criteria: ``(ended (K, 1, 2), tracked (K,))``."""
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, config.lk_iterations, config.lk_epsilon)
+    ended, status, _ = cv2.calcOpticalFlowPyrLK(previous_image, current_image, start, None, winSize=(config.lk_window, config.lk_window),
+                                                maxLevel=config.lk_levels, criteria=criteria)
+    return ended, status.ravel() == 1
 
 
 def _usable_ends(pixels: np.ndarray, image_size: tuple[int, int], border: float) -> np.ndarray:
@@ -311,7 +321,6 @@ def _exposure_compensated(previous_image: np.ndarray, current_image: np.ndarray,
     ``exposure_min_change`` (at most ``_EXPOSURE_ROUNDS`` rounds)."""
     tracked = good.copy()
     gain, original = 1.0, previous_image
-    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, config.lk_iterations, config.lk_epsilon)
     for _ in range(_EXPOSURE_ROUNDS):
         if tracked.sum() < _LEAST_EXPOSURE_TRACKS:
             break
@@ -320,9 +329,7 @@ def _exposure_compensated(previous_image: np.ndarray, current_image: np.ndarray,
             break
         gain *= change
         previous_image = cv2.convertScaleAbs(original, alpha=gain)
-        ended, status, _ = cv2.calcOpticalFlowPyrLK(previous_image, current_image, start, None, winSize=(config.lk_window, config.lk_window),
-                                                    maxLevel=config.lk_levels, criteria=criteria)
-        tracked = status.ravel() == 1
+        ended, tracked = _klt_forward(previous_image, current_image, start, config)
     return previous_image, ended, tracked
 
 

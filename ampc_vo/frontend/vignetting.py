@@ -111,6 +111,8 @@ class VignettingFit:
 
 
 _EXPOSURE_TRACKS = 100  # exposure_ratio: at most this many tracks (evenly spread over the list) measure it
+_EXPOSURE_BOX_SAMPLES = 12  # exposure_ratio reads the _PATCH_PX square on this many samples a side
+_DARKEST_MEAN, _BRIGHTEST_MEAN = 8.0, 240.0  # exposure_ratio: square means outside this range do not scale with the exposure
 
 
 def window_means(gray: np.ndarray, pixels: np.ndarray, window: float, samples: int) -> np.ndarray:
@@ -140,7 +142,3 @@ def exposure_ratio(previous_image: np.ndarray, current_image: np.ndarray, previo
     if not usable.any():
         return 1.0
     return float(np.exp(np.median(np.log(after[usable] / before[usable]))))
-
-
-_EXPOSURE_BOX_SAMPLES = 12  # exposure_ratio reads the _PATCH_PX square on this many samples a side
-_DARKEST_MEAN, _BRIGHTEST_MEAN = 8.0, 240.0  # exposure_ratio: square means outside this range do not scale with the exposure

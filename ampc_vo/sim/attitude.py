@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ampc_vo.geometry import yaws_of
 from ampc_vo.io.groundtruth import Trajectory
 from ampc_vo.sim.road import RoadSurface
 
@@ -223,7 +224,7 @@ def mount_vibration(rig, trajectory: Trajectory, vehicle: VehicleConfig, rng: np
 def hitch_angle_of(T_world_tractor: np.ndarray, T_world_trailer: np.ndarray) -> np.ndarray:
     """Yaw of ``R_tractor_trailer`` (DESIGN 1): the trailer's heading in the tractor's xy plane."""
     relative = np.einsum("nji,njk->nik", T_world_tractor[:, :3, :3], T_world_trailer[:, :3, :3])
-    return np.arctan2(relative[:, 1, 0], relative[:, 0, 0])
+    return yaws_of(relative)
 
 
 def poses_on_road(planar: Trajectory, road: RoadSurface, tractor_axle_x: float, trailer_axle_x: float, hitch_height: float,
@@ -232,8 +233,8 @@ def poses_on_road(planar: Trajectory, road: RoadSurface, tractor_axle_x: float, 
     Returns the 6-DoF trajectory (same timestamps, speed, curvature and arc length; hitch angle as
     the yaw of ``R_tractor_trailer``) and the body angles by cause."""
     count = len(planar)
-    tractor_yaw = np.arctan2(planar.T_world_tractor[:, 1, 0], planar.T_world_tractor[:, 0, 0])
-    trailer_yaw = np.arctan2(planar.T_world_trailer[:, 1, 0], planar.T_world_trailer[:, 0, 0])
+    tractor_yaw = yaws_of(planar.T_world_tractor)
+    trailer_yaw = yaws_of(planar.T_world_trailer)
     hitch_xy = planar.T_world_tractor[:, :2, 3]
     hitch_z, tractor_pitch, tractor_roll = _tractor_on_road(hitch_xy, tractor_yaw, road, tractor_axle_x, vehicle.tractor_wheelbase_m,
                                                             vehicle.half_track_m, hitch_height)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ampc_vo.errors import AmpcError
-from ampc_vo.geometry import unit_normal
+from ampc_vo.geometry import unit_normal, yaws_of
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,7 @@ def estimate_axle_x(T_world_body: np.ndarray, step: int = 1, min_yaw_change_rad:
     first, second = poses[:-step], poses[step:]
     relative_rotation = np.einsum("nji,njk->nik", first[:, :3, :3], second[:, :3, :3])      # R_i^T R_j
     relative_translation = np.einsum("nji,nj->ni", first[:, :3, :3], second[:, :3, 3] - first[:, :3, 3])
-    yaw_change = np.arctan2(relative_rotation[:, 1, 0], relative_rotation[:, 0, 0])
+    yaw_change = yaws_of(relative_rotation)
     turning = np.abs(yaw_change) > min_yaw_change_rad
     if turning.sum() < 2:
         raise AmpcError(f"only {int(turning.sum())} pose pairs turn by more than {np.degrees(min_yaw_change_rad):.2f} deg: axle_x is not observable on straight driving")

@@ -44,7 +44,7 @@ from evo.core.geometry import GeometryException
 from evo.core.trajectory import PoseTrajectory3D
 
 from ampc_vo.errors import AmpcError, DatasetError, OutputError, WriteError
-from ampc_vo.geometry import wrap_angle
+from ampc_vo.geometry import wrap_angle, yaws_of
 from ampc_vo.io.groundtruth import GroundTruth
 from ampc_vo.io.outputs import HITCH_FILE, TRACTOR_FILE, TRAILER_FILE, HitchSeries, Trajectory, read_hitch, read_tum
 from ampc_vo.io.run_folder import METRICS_FILE, PLOT_FILE, TIMING_FILE, FolderClaim, check_run_files
@@ -225,7 +225,7 @@ def lateral_accelerations(timestamps: np.ndarray, T_world_tractor: np.ndarray) -
         return np.zeros(len(timestamps)), np.zeros(len(timestamps))
     positions = T_world_tractor[:, :2, 3]
     velocity = np.gradient(positions, timestamps, axis=0)
-    yaw = np.unwrap(np.arctan2(T_world_tractor[:, 1, 0], T_world_tractor[:, 0, 0]))
+    yaw = np.unwrap(yaws_of(T_world_tractor))
     speed = np.hypot(velocity[:, 0], velocity[:, 1])
     return speed * np.gradient(yaw, timestamps), speed
 
