@@ -246,6 +246,10 @@ class SmootherConfig:
     nonholonomic_slip_deg: float = 0.2           # tractor axle: slip angle the arc model misses when not cornering
     trailer_nonholonomic_slip_deg: float = 0.2   # trailer axle group: the same
     nonholonomic_slip_deg_per_mps2: float = 0.7  # both: tyre slip angle per m/s^2 of lateral acceleration (cornering coefficient ~0.15/deg)
+    # the slip the arc misses stays for about this long (it follows the steering and the load): keyframe
+    # pairs shorter than it share one slip, so each pair's slip sigma grows by sqrt(time / dt) and the
+    # model's information per second does not grow with the keyframe rate (0: independent per pair)
+    nonholonomic_slip_correlation_s: float = 1.0
     # the trailer's crab angle (steady drift down a cross-slope, an axle group off the centre line, a
     # dog-tracking trailer), a variable of the trailer's non-holonomic factor with this prior (None: not
     # estimated, zero; opt-in: on the realistic suite it cost more than it gave, DESIGN 11)
@@ -304,6 +308,7 @@ class SmootherConfig:
             "lm_relative_error_tol",
         ):
             _positive(getattr(self, name), where + name)
+        _at_least(self.nonholonomic_slip_correlation_s, 0.0, where + "nonholonomic_slip_correlation_s")
         if self.lm_max_iterations is not None:
             _at_least(self.lm_max_iterations, 1, where + "lm_max_iterations")
         if self.trailer_crab_sigma_deg is not None:

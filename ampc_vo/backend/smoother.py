@@ -131,6 +131,28 @@ def planar_motions(twist: np.ndarray, delays: np.ndarray) -> tuple[np.ndarray, n
     return rotations, translations
 
 
+def nonholonomic_sigma(chord_m: float, dt_s: float, yaw_change_rad: float, base_slip_deg: float, slip_deg_per_mps2: float,
+                       floor_m: float, correlation_s: float = 0.0) -> float:
+    """Sigma (m) of an axle's non-holonomic residual over one keyframe pair (DESIGN 3, "Non-holonomic
+    sigma"): the lateral offset from the circular arc that the slip angle the model misses gives
+    over the chord, ``hypot(floor_m, chord tan(beta))``, with ``beta = hypot(beta0, k a_y)``: the
+    base slip ``base_slip_deg`` (axle groups, cross-slope drift, alignment) and tyre slip of
+    ``slip_deg_per_mps2`` per m/s^2 of the pair's lateral acceleration ``a_y = (chord / dt) (yaw
+    change / dt)`` (slip angle = lateral force / cornering stiffness = (a_y / g) / CC, a truck
+    tyre's cornering coefficient CC ~ 0.1-0.2 per degree, Gillespie, Fundamentals of Vehicle
+    Dynamics, ch. 10: ~0.7 degree per m/s^2). Growing with the chord, it lets neither a standing
+    start's short chords take any direction nor a long one in a turn none. The slip is one value over
+    ``correlation_s`` (it follows the steering and the load), so a pair shorter than that carries
+    only its share of the slip's information: ``beta`` grows by ``sqrt(correlation_s / dt)``, and
+    the pairs over any ``correlation_s`` seconds tell ``1 / beta^2`` about a shared slip angle
+    whatever the keyframe rate (at most 45 degrees; 0: every pair independent)."""
+    dt_s = max(dt_s, 1e-3)
+    lateral_acceleration = abs(chord_m / dt_s * yaw_change_rad / dt_s)
+    correlated = np.sqrt(max(correlation_s / dt_s, 1.0))
+    slip_deg = min(correlated * np.hypot(base_slip_deg, slip_deg_per_mps2 * lateral_acceleration), 45.0)
+    return float(np.hypot(floor_m, chord_m * np.tan(np.radians(slip_deg))))
+
+
 @dataclass(frozen=True)
 class MotionInit:
     """Initial values for a new keyframe relative to the previous one (from the minimal solvers).
@@ -749,16 +771,9 @@ class ArticulatedSmoother:
         pending.terms.append(Term((X(k), Y(k), A(k)), (POSE, POSE, SCALAR), fifth_wheel_error, sigmas))
 
     def _nonholonomic_sigma(self, body: str, keyframe: _Keyframe, pending: _Pending) -> float:
-        """Sigma (m) of a body's non-holonomic residual over keyframe pair (k-1, k): the lateral
-        offset its axle may take from the circular arc grows with the distance driven, by the slip
-        angle the model misses, over a floor ``nonholonomic_sigma_m``. The slip angle: a base
-        (``*nonholonomic_slip_deg``: axle groups, cross-slope drift, alignment) and tyre slip in
-        proportion to the lateral acceleration ``v * yaw rate`` of the initial motion (slip angle =
-        lateral force / cornering stiffness = (a_y / g) / CC with a truck tyre's cornering coefficient
-        CC ~ 0.1-0.2 per degree, Gillespie, Fundamentals of Vehicle Dynamics, ch. 10: ~0.7 degree
-        per m/s^2, ``nonholonomic_slip_deg_per_mps2``). A fixed sigma in metres lets a short chord take any
-        direction (3 degrees on the 0.4 m of a standing start's first keyframes) and a long one in
-        a turn none."""
+        """Sigma (m) of a body's non-holonomic residual over keyframe pair (k-1, k):
+        :func:`nonholonomic_sigma` of its axle's chord and yaw change in the current values, with the
+        body's base slip (``*nonholonomic_slip_deg``)."""
         config = self.config.smoother
         key = X if body == "tractor" else Y
         k = keyframe.index
@@ -766,10 +781,8 @@ class ArticulatedSmoother:
         axle = np.array([self.rig.axle_x(body), 0.0, 0.0])
         chord = float(np.linalg.norm(T_j_k[:3, :3] @ axle + T_j_k[:3, 3] - axle))
         base = config.nonholonomic_slip_deg if body == "tractor" else config.trailer_nonholonomic_slip_deg
-        dt = max(keyframe.dt, 1e-3)
-        lateral_acceleration = abs(chord / dt * yaw_of(T_j_k[:3, :3]) / dt)
-        slip = np.radians(np.hypot(base, config.nonholonomic_slip_deg_per_mps2 * lateral_acceleration))
-        return float(np.hypot(config.nonholonomic_sigma_m, chord * np.tan(slip)))
+        return nonholonomic_sigma(chord, keyframe.dt, yaw_of(T_j_k[:3, :3]), base, config.nonholonomic_slip_deg_per_mps2,
+                                  config.nonholonomic_sigma_m, config.nonholonomic_slip_correlation_s)
 
     def _interval_motion(self, key, k: int, pending: _Pending) -> tuple[float, float] | None:
         """Speed (m/s, of the body origin) and yaw rate (rad/s) over keyframe pair (k-1, k) from the

@@ -15,7 +15,7 @@ from ampc_vo.config import config_from_dict as _config_from_dict
 from ampc_vo.geometry import make_pose, planar_pose, relative_pose, rot_x, rot_y
 from ampc_vo.observations import CameraObservations, FrameObservations
 from ampc_vo.sim.simulation import simulate
-from ampc_vo.backend.smoother import ArticulatedSmoother, MotionInit, MotionStatus, planar_twist
+from ampc_vo.backend.smoother import ArticulatedSmoother, MotionInit, MotionStatus, nonholonomic_sigma, planar_twist
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -77,9 +77,10 @@ def test_full_mode_tracks_truth_in_a_turn(short_route):
     position, hitch = _errors(short_route, estimates, frames[0])
     assert len(estimates) == len(frames)
     assert position.max() < 0.6  # ~24 m driven
-    # causal estimates (measured ~0.4 deg RMSE, 1.0 deg at the first keyframes, where the trailer's
-    # own measurements, not its model, set the hitch: the non-holonomic sigma follows the tyre slip)
-    assert np.sqrt(np.mean(hitch**2)) < 0.5 and hitch.max() < 1.5
+    # causal estimates: 1.7 deg at the first two keyframes, where the trailer's own measurements,
+    # not its model, set the hitch (the non-holonomic sigma follows the tyre slip, and a slip shared
+    # by the pairs of one second counts once), then measured 0.2 deg RMSE
+    assert np.sqrt(np.mean(hitch[2:] ** 2)) < 0.4 and hitch.max() < 2.0
     sigmas = np.array([e.hitch_sigma for e in estimates[1:]])
     assert np.all(hitch[1:] <= 3.0 * np.degrees(sigmas))  # honest sigma
     # measured: 2.0 deg at the first two keyframes (a rolling start in a turn: the hitch from one
@@ -94,7 +95,9 @@ def test_other_modes(short_route, mode):
     frames = list(range(24, 45, 2))
     _, estimates = _run(short_route, config_from_dict({"mode": mode}), frames)
     position, hitch = _errors(short_route, estimates, frames[0])
-    assert position.max() < 1.0
+    # measured 1.0 m after 17 m in tractor_only and separate: in this turn only the Ackermann arc
+    # gives the tractor's scale, and the arc's slip over one second counts once (DESIGN 3)
+    assert position.max() < 1.2
     if mode == "tractor_only":
         assert all(e.T_world_trailer is None and e.hitch_angle is None for e in estimates)
     else:
@@ -157,7 +160,7 @@ def test_too_few_tracks_recovers(short_route, caplog):
     assert len(published) == len(frames)
     assert any("too few tracks" in record.message for record in caplog.records)
     position, hitch = _errors(short_route, published, frames[0])
-    assert position.max() < 1.0 and hitch.max() < 1.5
+    assert position.max() < 1.0 and hitch.max() < 2.0  # measured 0.86 m, 1.7 deg at the first keyframes
 
 
 def test_match_landmarks_pairs_equal_known_unique_ids():
@@ -207,6 +210,32 @@ def test_cross_camera_correspondences_are_used_and_keep_the_estimate_accurate(sh
     assert rows_with > rows_without
     assert position_with.max() < 0.6 and np.sqrt(np.mean(hitch_with**2)) < 0.5
     assert position_with.max() < 1.5 * position_without.max() + 0.05
+
+
+def test_nonholonomic_sigma_is_the_offset_the_missed_slip_gives_over_the_chord():
+    """An 8 m chord in 0.4 s turning 2 degrees (a_y = 20 m/s x 0.0873 rad/s = 1.745 m/s^2):
+    slip hypot(0.2, 0.7 x 1.745) = 1.238 degrees, offset 8 tan(1.238 deg) = 0.1730 m."""
+    sigma = nonholonomic_sigma(8.0, 0.4, np.radians(2.0), 0.2, 0.7, 0.005)
+    assert sigma == pytest.approx(np.hypot(0.005, 8.0 * np.tan(np.radians(1.23799))), rel=1e-4)
+    assert sigma == pytest.approx(0.17296, rel=1e-3)
+    # a pair as long as the slip's correlation time or longer: independent, as without it
+    assert nonholonomic_sigma(8.0, 0.4, np.radians(2.0), 0.2, 0.7, 0.005, correlation_s=0.4) == sigma
+    # a near standstill's tiny chord: the floor
+    assert nonholonomic_sigma(1e-6, 0.1, 0.0, 0.2, 0.7, 0.005) == pytest.approx(0.005)
+
+
+@pytest.mark.parametrize("dt", [0.05, 0.1, 0.25, 0.5, 1.0])
+def test_nonholonomic_information_about_a_shared_slip_does_not_grow_with_the_keyframe_rate(dt):
+    """Over one correlation time (1 s) at 25 m/s straight, the pairs together tell 1 / beta^2 about
+    the one slip angle beta they share (information chord^2 / sigma^2 each), however many there
+    are; without the correlation time, 20 pairs would tell 20 times what one does."""
+    speed, beta = 25.0, np.radians(0.2)
+    pairs = round(1.0 / dt)
+    chord = speed * dt
+    sigma = nonholonomic_sigma(chord, dt, 0.0, 0.2, 0.7, 1e-9, correlation_s=1.0)
+    assert pairs * (chord / sigma) ** 2 == pytest.approx(1.0 / beta**2, rel=2e-3)
+    independent = nonholonomic_sigma(chord, dt, 0.0, 0.2, 0.7, 1e-9)
+    assert pairs * (chord / independent) ** 2 == pytest.approx(pairs / beta**2, rel=2e-3)
 
 
 def test_planar_twist_keeps_yaw_rate_and_horizontal_velocity_only():
