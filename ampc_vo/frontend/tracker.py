@@ -186,9 +186,15 @@ def road_points(camera: Camera, pixels: np.ndarray, road_z: float) -> np.ndarray
     ``z = road_z`` of the camera's body frame (``-hitch_height``, DESIGN 1); NaN where a ray does
     not point down (or does not unproject)."""
     with np.errstate(all="ignore"):
-        rays = camera.unproject(pixels) @ camera.R_body_camera.T
-        depth = np.where(rays[:, 2] < -1e-6, (road_z - camera.center[2]) / rays[:, 2], np.nan)
-        return camera.center + depth[:, None] * rays
+        return road_points_of_rays(camera.unproject(pixels) @ camera.R_body_camera.T, camera.center, road_z)
+
+
+def road_points_of_rays(rays: np.ndarray, centre: np.ndarray, road_z: float) -> np.ndarray:
+    """Body-frame points (N, 3) where the body-frame rays (N, 3) from ``centre`` meet the road plane
+    ``z = road_z``; NaN where a ray does not point down."""
+    with np.errstate(all="ignore"):
+        depth = np.where(rays[:, 2] < -1e-6, (road_z - centre[2]) / rays[:, 2], np.nan)
+        return centre + depth[:, None] * rays
 
 
 def road_pixel_mask(camera: Camera, road_z: float, max_range_m: float, step: int = 8) -> np.ndarray | None:

@@ -18,7 +18,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ampc_vo.config import TrackerConfig
-from ampc_vo.frontend.tracker import CameraTracker
+from ampc_vo.errors import DatasetError
+from ampc_vo.frontend.tracker import CameraTracker, road_points_of_rays
 from ampc_vo.geometry import relative_pose
 
 MIN_ROAD_POINTS = 8
@@ -45,12 +46,12 @@ def planar_translation_from_road(bearings_i: np.ndarray, bearings_j: np.ndarray,
     road. ``None`` with fewer than 8 road points."""
     bearings_i, bearings_j = np.asarray(bearings_i, float), np.asarray(bearings_j, float)
     centre = np.asarray(camera_centre, float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        depth = (road_z - centre[2]) / bearings_i[:, 2]
-    on_road = (bearings_i[:, 2] < BELOW_HORIZON) & (depth > 0) & (depth * np.linalg.norm(bearings_i[:, :2], axis=1) < max_range_m)
+    points_i = road_points_of_rays(bearings_i, centre, road_z)
+    with np.errstate(invalid="ignore"):
+        on_road = (bearings_i[:, 2] < BELOW_HORIZON) & (np.linalg.norm(points_i[:, :2] - centre[:2], axis=1) < max_range_m)
     if np.count_nonzero(on_road) < MIN_ROAD_POINTS:
         return None
-    points_i = centre + depth[on_road, None] * bearings_i[on_road]
+    points_i = points_i[on_road]
     measured_j = bearings_j[on_road] / np.linalg.norm(bearings_j[on_road], axis=1, keepdims=True)
 
     def residuals(translation_xy: np.ndarray) -> np.ndarray:
@@ -85,17 +86,20 @@ def road_direction_errors(dataset, truth, camera_name: str, start: int, stop: in
     rig = dataset.rig
     camera = rig.camera(camera_name)
     tracker = CameraTracker(camera, config, road_z=rig.ground_z)
-    R_body_camera, centre = camera.T_body_camera[:3, :3], camera.T_body_camera[:3, 3]
-    poses_of_body = "T_world_tractor" if camera.body == "tractor" else "T_world_trailer"
+    frames = range(start, stop)
+    capture_times = np.array([dataset.camera_timestamp(frame, camera_name) for frame in frames])
+    at_capture = truth_at(truth, capture_times)
+    if len(at_capture.timestamps) != len(capture_times):
+        raise DatasetError(f"{camera_name}: frames [{start}, {stop}) reach outside the ground truth's time span")
+    T_world_body = at_capture.T_world_tractor if camera.body == "tractor" else at_capture.T_world_trailer
     rows, previous = [], None
-    for frame in range(start, stop):
+    for index, frame in enumerate(frames):
         observations = tracker.track(dataset.load_image(frame, camera_name))
-        T_world_body = getattr(truth_at(truth, np.array([dataset.camera_timestamp(frame, camera_name)])), poses_of_body)[0]
-        current = (observations.track_ids, observations.bearings @ R_body_camera.T, T_world_body)
+        current = (observations.track_ids, observations.bearings @ camera.R_body_camera.T, T_world_body[index])
         if previous is not None:
             _, in_i, in_j = np.intersect1d(previous[0], current[0], return_indices=True)
             T_i_j = relative_pose(previous[2], current[2])
-            road = planar_translation_from_road(previous[1][in_i], current[1][in_j], T_i_j[:3, :3], centre, rig.ground_z, T_i_j[2, 3])
+            road = planar_translation_from_road(previous[1][in_i], current[1][in_j], T_i_j[:3, :3], camera.center, rig.ground_z, T_i_j[2, 3])
             true_xy = T_i_j[:2, 3]
             if road is not None and np.linalg.norm(true_xy) > 0.05:
                 error = np.degrees(np.arctan2(road.translation_xy[1], road.translation_xy[0]) - np.arctan2(true_xy[1], true_xy[0]))
