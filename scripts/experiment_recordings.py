@@ -4,9 +4,11 @@ calibrated through a Kalibr camchain (issue 15 acceptance; ``ampc_vo.tools.recor
 
     python scripts/experiment_recordings.py --out OUT [--route configs/sim/demo.yaml] [--frames N]
                                             [--offsets-ms 0,17,33,50] [--formats ros2-mcap,ros1]
+                                            [--raw | --image-format png]
 
 Renders the route with camera k capturing at frame time + offset k (OUT/folder, reused when
-there), writes it as each recording format with JPEG-compressed images (--raw: uncompressed),
+there), writes it as each recording format with JPEG-compressed images (--image-format png: PNG,
+lossless; --raw: uncompressed),
 builds the rig through camchain.yaml + layout.yaml, runs the odometry on all and prints one row
 each: tractor ATE, trailer ATE, hitch RMSE and their ratio to the folder's.
 """
@@ -34,6 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--offsets-ms", default="0,17,33,50", help="capture offset of each rig camera (ms), in rig order")
     parser.add_argument("--formats", default="ros2-mcap,ros1")
     parser.add_argument("--raw", action="store_true", help="uncompressed images in the recordings")
+    parser.add_argument("--image-format", choices=("jpeg", "png"), default="jpeg", help="compression of the images (JPEG quality 95, or PNG)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     from ampc_vo.sim.config import load_sim_config
@@ -46,11 +49,11 @@ def main(argv: list[str] | None = None) -> int:
     folder = args.out / "folder"
     if not (folder / "frames.csv").is_file():
         render_unsynchronised(args.route, folder, dict(zip(rig.camera_names, offsets)), args.frames, progress=True)
-    work = args.out / ("raw" if args.raw else "compressed")
+    work = args.out / ("raw" if args.raw else f"compressed-{args.image_format}")
     shutil.rmtree(work, ignore_errors=True)
-    comparison = compare_log_with_folder(folder, work, tuple(args.formats.split(",")), compressed=not args.raw)
+    comparison = compare_log_with_folder(folder, work, tuple(args.formats.split(",")), compressed=not args.raw, image_format=args.image_format)
     base = comparison.folder
-    print(f"{args.route.name}: offsets {args.offsets_ms} ms, images {'raw' if args.raw else 'JPEG q95'}, {base.distance_m:.0f} m")
+    print(f"{args.route.name}: offsets {args.offsets_ms} ms, images {'raw' if args.raw else {'jpeg': 'JPEG q95', 'png': 'PNG'}[args.image_format]}, {base.distance_m:.0f} m")
     print("| source | keyframes | tractor ATE m | trailer ATE m | hitch RMSE deg | ATE / folder | hitch / folder |")
     print("|---|---|---|---|---|---|---|")
     for name, metrics in [("folder", base), *comparison.logs.items()]:

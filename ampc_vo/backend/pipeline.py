@@ -44,6 +44,20 @@ class KeyframeDecision:
     reason: str
 
 
+_CLOCK_JITTER_PERIODS = 0.25  # interval_reached: tolerance in frame periods
+
+
+def interval_reached(elapsed_s: float, interval_s: float, frame_period_s: float = 0.0) -> bool:
+    """Whether ``elapsed_s`` since the last keyframe has reached ``interval_s``, up to a quarter of
+    the frame period ``frame_period_s``. A camera's clock jitters by milliseconds around the frame
+    rate (a log's frame times are its reference camera's capture stamps, a folder's the nominal
+    times): an interval that is a whole number of frame periods, compared exactly, takes the frame
+    on one clock and the next frame on the other, and every later keyframe moves with it (a
+    realistic yard route from a lossless log: ATE 0.127 m against the folder's 0.076 m). With the
+    tolerance both take the same frame while the jitter stays below a quarter period."""
+    return elapsed_s >= interval_s - max(_CLOCK_JITTER_PERIODS * frame_period_s, 1e-9)
+
+
 @dataclass(frozen=True)
 class KeyframePolicy:
     """Keyframe selection from the tractor motion since the last keyframe (config ``keyframes``)."""
@@ -57,10 +71,11 @@ class KeyframePolicy:
         keyframes = config.keyframes
         return KeyframePolicy(keyframes.min_distance_m, np.radians(keyframes.min_rotation_deg), keyframes.max_interval_s)
 
-    def decide(self, motion: TractorMotion, elapsed_s: float) -> KeyframeDecision:
+    def decide(self, motion: TractorMotion, elapsed_s: float, frame_period_s: float = 0.0) -> KeyframeDecision:
+        """``frame_period_s``: the time since the previous frame (:func:`interval_reached`)."""
         if motion.status is MotionStatus.TOO_FEW_TRACKS:
             return KeyframeDecision(True, "too few tracks")
-        if elapsed_s >= self.max_interval_s - 1e-9:
+        if interval_reached(elapsed_s, self.max_interval_s, frame_period_s):
             return KeyframeDecision(True, "interval")
         if motion.status is MotionStatus.STANDSTILL:
             return KeyframeDecision(False, "standstill")
@@ -143,6 +158,7 @@ class OdometryPipeline:
         self._trailer_velocity: tuple[float, float] | None = None
         self._hitch: float | None = None
         self._frames = 0
+        self._previous_timestamp = 0.0  # the previous frame's time (s): the frame period of interval_reached
         self._distance = 0.0
         self._statuses: dict[str, int] = {}
         self._bootstrapping = True
@@ -167,17 +183,18 @@ class OdometryPipeline:
         """Consume one frame; returns the estimates published by it (often none)."""
         self._frames += 1
         if self._last_keyframe is None:
-            self._last_keyframe = frame
+            self._last_keyframe, self._previous_timestamp = frame, frame.timestamp
             self._bootstrap.append((frame, None))
             return []
         elapsed = frame.timestamp - self._last_keyframe.timestamp
+        frame_period, self._previous_timestamp = frame.timestamp - self._previous_timestamp, frame.timestamp
         if elapsed <= 0:
             logger.warning("frame %d: timestamp %.6f not after the last keyframe's %.6f: skipped", frame.frame, frame.timestamp, self._last_keyframe.timestamp)
             return []
         if self._bootstrapping:
-            return self._process_bootstrap(frame, elapsed)
+            return self._process_bootstrap(frame, elapsed, frame_period)
         predicted = self._predicted(elapsed, self._velocity)
-        if self._clearly_no_keyframe(frame, predicted, elapsed):
+        if self._clearly_no_keyframe(frame, predicted, elapsed, frame_period):
             return []
         # constant-speed prediction: sigma from the smooth-speed acceleration sigma (DESIGN 2.3)
         acceleration = self.config.scale.smooth_speed_sigma_mps2 or 1.0
@@ -189,7 +206,7 @@ class OdometryPipeline:
         tractor = self.initializer.tractor(self._last_keyframe, frame, predicted, prediction_sigma if self._velocity is not None else None,
                                            speed_before=self._speed_before, hitch=self._hitch,
                                            speed_age=self._speed_age)
-        decision = self.policy.decide(tractor, elapsed)
+        decision = self.policy.decide(tractor, elapsed, frame_period)
         if not decision.is_keyframe:
             return []
         return self._add_keyframe(frame, tractor, elapsed)
@@ -207,12 +224,12 @@ class OdometryPipeline:
             return 0.0
         return max(self._last_keyframe.timestamp - self._speed_measured_at, 0.0)
 
-    def _clearly_no_keyframe(self, frame: FrameObservations, predicted: np.ndarray, elapsed: float) -> bool:
+    def _clearly_no_keyframe(self, frame: FrameObservations, predicted: np.ndarray, elapsed: float, frame_period: float) -> bool:
         """True when the constant-velocity prediction is far below the keyframe thresholds
         (``keyframes.prediction_gate``) and the tracks shared with the last keyframe are plenty:
         the frame cannot be a keyframe and its tractor RANSAC is skipped (about 20 ms per frame)."""
         gate = self.config.keyframes.prediction_gate
-        if gate <= 0.0 or self._velocity is None or elapsed >= gate * self.policy.max_interval_s:
+        if gate <= 0.0 or self._velocity is None or interval_reached(elapsed, gate * self.policy.max_interval_s, frame_period):
             return False
         if np.linalg.norm(predicted[:2, 3]) >= gate * self.config.keyframes.min_distance_m or abs(yaw_of(predicted)) >= gate * self.policy.min_rotation_rad:
             return False
@@ -251,7 +268,7 @@ class OdometryPipeline:
         return published
 
     # ------------------------------------------------------------------ scale bootstrap
-    def _process_bootstrap(self, frame: FrameObservations, elapsed: float) -> list[KeyframeEstimate]:
+    def _process_bootstrap(self, frame: FrameObservations, elapsed: float, frame_period: float) -> list[KeyframeEstimate]:
         """Before metric scale was observed (straight start: DESIGN 2.3), keyframes are taken by
         time or rotation and buffered; once ``bootstrap_pairs`` keyframe pairs had an observable
         chord (or ``bootstrap_max_s`` passed with at least one), their median speed scales the
@@ -264,7 +281,7 @@ class OdometryPipeline:
         tractor = self.initializer.tractor(self._last_keyframe, frame, predicted, hitch=self._hitch)
         rotation = abs(tractor.yaw_change) >= self.policy.min_rotation_rad
         observed = tractor.status is MotionStatus.OK and tractor.chord >= self.config.keyframes.standstill_distance_m
-        if not (observed or rotation or tractor.status is MotionStatus.TOO_FEW_TRACKS or elapsed >= scale.bootstrap_interval_s - 1e-9):
+        if not (observed or rotation or tractor.status is MotionStatus.TOO_FEW_TRACKS or interval_reached(elapsed, scale.bootstrap_interval_s, frame_period)):
             return []
         measured = (wheel, scale.wheel_speed_sigma_m) if wheel is not None else self.initializer.measured_chord(self._last_keyframe, frame, tractor)
         self._bootstrap.append((frame, tractor))

@@ -73,9 +73,11 @@ class LogComparison:
 
 
 def compare_log_with_folder(dataset: str | Path, work: str | Path, formats: tuple[str, ...] = ("ros2-mcap", "ros1"),
-                            compressed: bool = True, config: VoConfig | None = None) -> LogComparison:
+                            compressed: bool = True, config: VoConfig | None = None, image_format: str = "jpeg") -> LogComparison:
     """Run ``dataset`` as a folder and as recordings in ``formats`` (module docstring; the rig of
-    the recordings goes through a Kalibr camchain and the layout) and evaluate each."""
+    the recordings goes through a Kalibr camchain and the layout) and evaluate each. ``compressed``:
+    the images as ``CompressedImage`` in ``image_format`` (``jpeg``, quality 95, or the lossless
+    ``png``), else raw ``Image`` messages."""
     from ampc_vo.frontend.sources import open_sequence
     from ampc_vo.io.bag_writer import RecordingContent, recording_time_origin, write_recording
     from ampc_vo.io.folder import read_dataset
@@ -96,7 +98,7 @@ def compare_log_with_folder(dataset: str | Path, work: str | Path, formats: tupl
     logs = {}
     for format in formats:
         log = work / f"log-{format}{suffixes.get(format, '')}"
-        content = RecordingContent(compressed=tuple(folder.camera_names) if compressed else ())
+        content = RecordingContent(compressed=tuple(folder.camera_names) if compressed else (), image_format=image_format)
         write_recording(folder, log, format, content)
         run_sequence(open_sequence(log, config, rig=rig), config, work / f"out-{format}", progress=False)
         on_log_clock = dataclasses.replace(truth, timestamps=truth.timestamps + recording_time_origin(folder, content))
