@@ -53,8 +53,8 @@ def interval_reached(elapsed_s: float, interval_s: float, frame_period_s: float 
     rate (a log's frame times are its reference camera's capture stamps, a folder's the nominal
     times): an interval that is a whole number of frame periods, compared exactly, takes the frame
     on one clock and the next frame on the other, and every later keyframe moves with it (a
-    realistic yard route from a lossless log: ATE 0.127 m against the folder's 0.076 m). With the
-    tolerance both take the same frame while the jitter stays below a quarter period."""
+    realistic yard route from a lossless log took frame 6 for the folder's 5 as its second keyframe).
+    With the tolerance both take the same frame while the jitter stays below a quarter period."""
     return elapsed_s >= interval_s - max(_CLOCK_JITTER_PERIODS * frame_period_s, 1e-9)
 
 

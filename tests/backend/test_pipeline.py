@@ -109,7 +109,8 @@ def test_a_jittering_frame_clock_takes_the_same_keyframes(short_dataset):
     around the frame rate, where a dataset folder has the nominal times: the same frames become
     keyframes on both clocks. At a standstill a keyframe is due every ``max_interval_s`` (1 s, ten
     100 ms periods); where the clock ran a few milliseconds early, the next frame was taken, and
-    every later keyframe moved with it (a realistic yard route from a lossless log: ATE 0.127 m against the folder's 0.076 m)."""
+    every later keyframe moved with it (a realistic yard route from a lossless log: its second
+    keyframe was frame 6 where the folder's was frame 5)."""
     _, result = short_dataset
     config = config_from_dict({"output": {"progress": False}})
     frames = list(result.measurements.frames(result.rig))[:40]
