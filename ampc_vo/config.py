@@ -371,7 +371,7 @@ class ScaleConfig:
     ground_lane_half_width_m: float | None = 2.0
     ground_lane_length_m: float = 40.0
     cross_camera: bool = True
-    cross_camera_max_gap: int = 6
+    cross_camera_max_gap: int = 1
     cross_camera_gate_px: float = 10.0
     # chord of the tractor axle from points triangulated by two cameras of the tractor in the same
     # frame (equal landmark_ids; KITTI's stereo pair): initial chord and a robust chord factor

@@ -49,7 +49,8 @@ def test_the_trailers_cameras_measure_its_crab(tmp_path, route):
     steady part): with the crab angle a variable of the trailer's non-holonomic factor
     (``smoother.trailer_crab_sigma_deg``, opt-in) the trailer cameras measure it; without it (the
     default) every keyframe pair's arc asserts zero alike and the hitch carries the drift (measured
-    2026-12-05: hitch RMSE 0.056 deg against 0.175 deg, mean error -0.17 deg without)."""
+    2026-12-05: hitch RMSE 0.056 deg against 0.175 deg, mean error -0.17 deg without; 2026-12-07,
+    cross-camera pairs between consecutive keyframes only: 0.059 deg against 0.098 deg)."""
     result = route
     data = tmp_path / "data"
     write_dataset(data, result.rig, result.trajectory.timestamps, groundtruth=result.trajectory, measurements=result.measurements)
@@ -59,7 +60,7 @@ def test_the_trailers_cameras_measure_its_crab(tmp_path, route):
         config = config_from_dict({"output": {"progress": False}, "smoother": {"trailer_crab_sigma_deg": crab}})
         run_on_frames(result.rig, config, result.measurements.frames(result.rig), tmp_path / name, total=len(result.trajectory))
         metrics[name] = evaluate_output(tmp_path / name, truth).metrics
-    assert metrics["crab"].hitch_rmse_deg < 0.1 and metrics["arc"].hitch_rmse_deg > 0.12
+    assert metrics["crab"].hitch_rmse_deg < 0.1 and metrics["arc"].hitch_rmse_deg > 1.4 * metrics["crab"].hitch_rmse_deg
     assert metrics["crab"].hitch_within_2sigma >= 0.95 and metrics["crab"].hitch_sigma_median_deg < 0.3
 
 
