@@ -20,7 +20,7 @@ from scipy.optimize import least_squares
 from ampc_vo.config import TrackerConfig
 from ampc_vo.errors import DatasetError
 from ampc_vo.frontend.tracker import CameraTracker, road_points_of_rays
-from ampc_vo.geometry import relative_pose
+from ampc_vo.geometry import relative_pose, wrap_angle
 
 MIN_ROAD_POINTS = 8
 BELOW_HORIZON = -0.03  # body-frame bearing z: a ray that meets the road within ~80 m of a 2.5 m high camera
@@ -102,8 +102,8 @@ def road_direction_errors(dataset, truth, camera_name: str, start: int, stop: in
             road = planar_translation_from_road(previous[1][in_i], current[1][in_j], T_i_j[:3, :3], camera.center, rig.ground_z, T_i_j[2, 3])
             true_xy = T_i_j[:2, 3]
             if road is not None and np.linalg.norm(true_xy) > 0.05:
-                error = np.degrees(np.arctan2(road.translation_xy[1], road.translation_xy[0]) - np.arctan2(true_xy[1], true_xy[0]))
-                rows.append((frame, road.road_points, (error + 180.0) % 360.0 - 180.0, road.translation_xy[0] / true_xy[0]))
+                error = wrap_angle(np.arctan2(road.translation_xy[1], road.translation_xy[0]) - np.arctan2(true_xy[1], true_xy[0]))
+                rows.append((frame, road.road_points, np.degrees(error), road.translation_xy[0] / true_xy[0]))
         previous = current
     table = np.array(rows, dtype=float).reshape(-1, 4)
     return RoadDirectionErrors(table[:, 0].astype(int), table[:, 1].astype(int), table[:, 2], table[:, 3])
