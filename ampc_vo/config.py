@@ -370,6 +370,10 @@ class ScaleConfig:
     ground_normal_prior_sigma_deg: float = 2.0
     ground_lane_half_width_m: float | None = 2.0
     ground_lane_length_m: float = 40.0
+    # the measured chords are those of the path between the times their road points were seen
+    # (camera offsets, rolling-shutter rows), not between the keyframe times: a speed change
+    # within the delay makes them differ (a braking truck's ground chords read short; DESIGN 11)
+    capture_time_chords: bool = True
     cross_camera: bool = True
     cross_camera_max_gap: int = 1
     cross_camera_gate_px: float = 10.0

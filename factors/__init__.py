@@ -36,7 +36,7 @@ from factors.noise import robust_noise
 from factors.nonholonomic import NonHolonomicFactor, crabbed_nonholonomic_error, nonholonomic_error
 from factors.planar import PlanarMotionFactor, planar_motion_error
 from factors.stacked import StackedFactor, Term
-from factors.wheel_speed import WheelSpeedFactor, chord_error, scaled_chord_error
+from factors.wheel_speed import WheelSpeedFactor, capture_chord_error, capture_chord_weights, chord_error, scaled_chord_error
 
 __all__ = [
     "ArticulatedEpipolarFactor",
@@ -53,6 +53,8 @@ __all__ = [
     "articulated_epipolar_error",
     "body_correspondences",
     "body_correspondences_per_row",
+    "capture_chord_error",
+    "capture_chord_weights",
     "chord_error",
     "epipolar_error",
     "joint_loop_error",

@@ -552,6 +552,7 @@ class MotionInitializer:
             return init
         correspondences = []
         interval = second.timestamp - first.timestamp
+        delays = []
         for pair in pairs:
             inlier_ids = init.inlier_tracks.get(pair.camera.name)
             keep = np.isin(pair.track_ids, inlier_ids) if inlier_ids is not None else np.ones(len(pair), bool)
@@ -559,6 +560,8 @@ class MotionInitializer:
             # point's baseline is the keyframes' motion over its own time interval
             time_scale = None if pair.times_i is None or interval <= 0.0 else (pair.times_j[keep] - pair.times_i[keep]) / interval
             correspondences.append((pair.camera, pair.bearings_i[keep], pair.bearings_j[keep], time_scale))
+            if time_scale is not None:
+                delays.append(0.5 * ((pair.times_i[keep] - first.timestamp) + (pair.times_j[keep] - second.timestamp)))
         yaw_sigma = max(float(yaw_sigma), _MIN_YAW_SIGMA) if np.isfinite(yaw_sigma) else _DEFAULT_YAW_SIGMA
         measured = ground_plane_chord(correspondences, init.T_tractor, self.rig.axle_x("tractor"), self._ground_options, yaw_sigma,
                                       driven=self._driven_path())
@@ -573,12 +576,17 @@ class MotionInitializer:
                         first.frame, second.frame, measured.chord, measured.sigma, measured.inlier_count, *speed_bounds, interval)
             return init
         chord, sigma = measured.chord, measured.sigma
+        # the time after the keyframes at which the road was seen: the chord is that of the path
+        # between those times, which a speed change makes differ from the keyframes' (smoother,
+        # factors.wheel_speed.capture_chord_error; DESIGN 11, "Capture-time chords")
+        delay = float(np.mean(np.concatenate(delays))) if delays and sum(map(len, delays)) else 0.0
         if init.scale_chord is not None:  # independent measurements of the same chord
             other_chord, other_sigma = init.scale_chord
             weights = np.array([1.0 / sigma**2, 1.0 / other_sigma**2])
             chord, sigma = float(weights @ [chord, other_chord] / weights.sum()), float(1.0 / np.sqrt(weights.sum()))
+            delay = float(delay * weights[0] / weights.sum() + init.scale_chord_delay_s * weights[1] / weights.sum())
         T_tractor = init.T_tractor
         if init.tractor_status is MotionStatus.SCALE_UNOBSERVABLE:  # a better initial value than the predicted chord
             T_tractor = self._with_chord(T_tractor, chord)
-        return dataclasses.replace(init, T_tractor=T_tractor, scale_chord=(chord, sigma))
+        return dataclasses.replace(init, T_tractor=T_tractor, scale_chord=(chord, sigma), scale_chord_delay_s=delay)
 

@@ -86,7 +86,7 @@ from factors.nonholonomic import crabbed_nonholonomic_error, nonholonomic_error
 from factors.planar import planar_motion_error, planar_sigmas
 from factors.relative_pose import between_prior
 from factors.stacked import StackedFactor, Term
-from factors.wheel_speed import chord_error, scaled_chord_error
+from factors.wheel_speed import capture_chord_error, capture_chord_weights, chord_error, scaled_chord_error
 from factors.smooth_speed import SmoothSpeedFactor
 
 logger = logging.getLogger(__name__)
@@ -172,6 +172,10 @@ class MotionInit:
     wheel_chord: float | None = None  # measured chord of the tractor axle midpoint (wheel odometry), metres
     # visual metric-scale measurement of the same chord (e.g. ground-plane scale): (chord m, sigma m)
     scale_chord: tuple[float, float] | None = None
+    # mean time (s) after the keyframe times at which the scale chord's points were seen (camera
+    # offsets and row readout): the chord is that of the path between the capture times
+    # (factors.wheel_speed.capture_chord_error; 0: at the keyframe times)
+    scale_chord_delay_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -231,6 +235,10 @@ class _Keyframe:
     landmarks: dict = field(default_factory=dict)  # per camera: (usable indices, their landmark ids), computed once
     capture_twists: dict = field(default_factory=dict)  # per body: the twist its epipolar blocks' capture-time extrinsics were built with
     epipolar_factor: object = None  # the keyframe's StackedEpipolarFactor (replaced by _refresh_capture_twists)
+    # a scale chord seen after the keyframe times, (chord m, sigma m, delay s), and its constant-speed
+    # factor until the next keyframe replaces it (ArticulatedSmoother._add_scale_chord)
+    capture_chord: tuple[float, float, float] | None = None
+    capture_chord_factor: object = None
 
     def usable_landmarks(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
         """Indices of the camera's observations with a usable landmark id (:func:`match_landmarks`) and the ids."""
@@ -253,6 +261,7 @@ class _Pending:
     timestamps: dict[int, float] = field(default_factory=dict)
     residuals: int = 0
     terms: list = field(default_factory=list)  # small residuals of one keyframe, stacked into one factor
+    removals: list = field(default_factory=list)  # indices of the smoother's factors this update replaces
 
     def flush_terms(self) -> None:
         """Add the collected terms as one :class:`factors.stacked.StackedFactor` (issue 5 timing)."""
@@ -272,6 +281,8 @@ class _Pending:
 # it by more than this (rad) over its capture delay (ArticulatedSmoother._refresh_capture_twists)
 _CAPTURE_SHIFT_M = 0.003
 _CAPTURE_TURN_RAD = float(np.radians(0.02))
+# a scale chord seen less than this after (or before) the keyframe times is taken at the keyframe times
+_MIN_CAPTURE_DELAY_S = 1e-4
 
 
 def _pose_sigmas(rotation_rad: float, translation_m: float) -> gtsam.noiseModel.Base:
@@ -367,7 +378,7 @@ class ArticulatedSmoother:
             for key, stamp in pending.timestamps.items():
                 stamps.insert((key, stamp))
             try:
-                timing.iterations = int(self._smoother.update(pending.graph, pending.values, stamps).getIterations())
+                timing.iterations = int(self._smoother.update(pending.graph, pending.values, stamps, pending.removals).getIterations())
             except RuntimeError as error:
                 self._recover(keyframe, pending, error)
         except BaseException:
@@ -593,6 +604,7 @@ class ArticulatedSmoother:
         T_world_tractor = self._pose(X(previous), pending) @ init.T_tractor
         keyframe.chord = float(np.linalg.norm(init.T_tractor[:3, 3]))
         pending.insert(X(k), T_world_tractor, keyframe.timestamp)
+        self._complete_capture_chord(keyframe, pending)
         self._add_wheel_scale(keyframe, pending)
         self._add_crab(keyframe, pending)
         self._log_state("tractor", init.tractor_status, keyframe)
@@ -650,11 +662,54 @@ class ArticulatedSmoother:
                 else:
                     pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(init.wheel_chord)), wheel_sigma))
             if body == "tractor" and init.scale_chord is not None:
-                chord, chord_sigma = init.scale_chord
-                # Gaussian: gross outliers are dropped before (MotionInitializer._reachable); under a Huber
-                # kernel every chord of the window could be given up at once (DESIGN 11, "Measured chords")
-                pending.terms.append(Term(pair, (POSE, POSE), partial(chord_error, axle_x=axle_x, chord_length=float(chord)), np.array([float(chord_sigma)])))
+                self._add_scale_chord(keyframe, pending)
         keyframe.epipolar_factor = self._add_stacked_epipolar(epipolar_blocks, pending)
+
+    def _add_scale_chord(self, keyframe: _Keyframe, pending: _Pending) -> None:
+        """The measured metric chord of the tractor axle from keyframe k-1 to k (ground plane,
+        stereo: ``MotionInit.scale_chord``). Gaussian: gross outliers are dropped before
+        (MotionInitializer._reachable); under a Huber kernel every chord of the window could be
+        given up at once (DESIGN 11, "Measured chords").
+
+        Its points were seen ``MotionInit.scale_chord_delay_s`` after the keyframe times (camera
+        offsets, row readout), so it is the chord of the path between those times
+        (:func:`factors.wheel_speed.capture_chord_error`, DESIGN 11 "Capture-time chords"), which
+        needs the speed at k and so the path after k: until the next keyframe the constant-speed
+        chord goes in as a factor of its own, which that keyframe replaces
+        (:meth:`_complete_capture_chord`)."""
+        k = keyframe.index
+        chord, sigma = (float(value) for value in keyframe.init.scale_chord)
+        delay = keyframe.init.scale_chord_delay_s if self.config.scale.capture_time_chords else 0.0
+        term = Term((X(k - 1), X(k)), (POSE, POSE), partial(chord_error, axle_x=self.rig.axle_x("tractor"), chord_length=chord), np.array([sigma]))
+        if abs(delay) < _MIN_CAPTURE_DELAY_S:
+            pending.terms.append(term)
+            return
+        factor = StackedFactor([term])
+        pending.graph.add(factor)
+        keyframe.capture_chord, keyframe.capture_chord_factor = (chord, sigma, delay), factor
+
+    def _complete_capture_chord(self, keyframe: _Keyframe, pending: _Pending) -> None:
+        """Keyframe l has come: the previous keyframe k's chord seen after (or before) the keyframe
+        times (:meth:`_add_scale_chord`) replaces its constant-speed factor by the capture-time term
+        over k-2 (when still in the window), k-1, k and l, removed and added in this update. Nothing
+        when that factor has left the window with its oldest pose."""
+        previous = self._window.get(keyframe.index - 1)
+        if previous is None or previous.capture_chord_factor is None:
+            return
+        factor, previous.capture_chord_factor = previous.capture_chord_factor, None
+        graph = self._smoother.getFactors()
+        index = next((i for i in range(graph.size()) if graph.exists(i) and graph.at(i) is factor), None)
+        if index is None:
+            return
+        chord, sigma, delay = previous.capture_chord
+        k = previous.index
+        start = self._window.get(k - 1)  # the pair's first keyframe; its dt: the interval from k-2
+        with_before = k - 2 in self._window and self._estimate.exists(X(k - 2)) and start is not None and start.dt > 0.0
+        keys = tuple(X(i) for i in range(k - 2 if with_before else k - 1, keyframe.index + 1))
+        weights = capture_chord_weights(delay, start.dt if with_before else None, previous.dt, keyframe.dt)
+        pending.removals.append(index)
+        pending.terms.append(Term(keys, (POSE,) * len(keys), partial(capture_chord_error, axle_x=self.rig.axle_x("tractor"), chord_length=chord,
+                                                                      weights=weights), np.array([sigma])))
 
     @property
     def _trailer_crab(self) -> bool:

@@ -7,7 +7,7 @@ import pytest
 from gtsam.utils.numerical_derivative import numericalDerivative21, numericalDerivative22, numericalDerivative31, numericalDerivative32, numericalDerivative33
 
 from ampc_vo.geometry import make_pose, rot_z
-from factors import WheelSpeedFactor, chord_error, scaled_chord_error
+from factors import WheelSpeedFactor, capture_chord_error, capture_chord_weights, chord_error, scaled_chord_error
 from factors_support import articulated_truth, as_float, assert_jacobian_close, random_pose
 
 NOISE = gtsam.noiseModel.Isotropic.Sigma(1, 0.05)
@@ -101,3 +101,57 @@ def test_wheel_scale_is_recovered_beside_an_exact_metric_chord():
             np.testing.assert_allclose(chords, chord, rtol=2e-3)
         else:
             assert np.mean(chords) > 1.01 * chord
+
+
+@pytest.mark.parametrize("yaw_change", [0.0, 0.3])
+def test_capture_chord_jacobians_match_numerical_derivatives(yaw_change):
+    rng = np.random.default_rng(7)
+    poses = [random_pose(rng, 1.0, 10.0)]
+    for step in ([1.2, 0.3, 0.05], [0.8, -0.1, 0.02], [0.5, 0.05, -0.01]):
+        poses.append(poses[-1].compose(gtsam.Pose3(make_pose(rot_z(yaw_change), np.array(step)))))
+    weights = (-0.02, 1.03, 0.05)
+
+    def residual(T_world_a, T_world_b, T_world_c, T_world_d):
+        return capture_chord_error(T_world_a, T_world_b, T_world_c, T_world_d, axle_x=0.7, chord_length=1.0, weights=weights)[0]
+
+    _, jacobians = capture_chord_error(*poses, axle_x=0.7, chord_length=1.0, weights=weights, jacobians=True)
+    step = 1e-6
+    for index, jacobian in enumerate(jacobians):
+        assert jacobian.shape == (1, 6)
+        numerical = np.zeros((1, 6))
+        for axis in range(6):
+            delta = np.zeros(6)
+            delta[axis] = step
+            plus = [pose.retract(delta) if i == index else pose for i, pose in enumerate(poses)]
+            minus = [pose.retract(-delta) if i == index else pose for i, pose in enumerate(poses)]
+            numerical[0, axis] = (residual(*plus)[0] - residual(*minus)[0]) / (2 * step)
+        assert_jacobian_close(jacobian, numerical)
+    with pytest.raises(ValueError, match="3 weights need 4 poses"):
+        capture_chord_error(*poses[:3], axle_x=0.7, chord_length=1.0, weights=weights)
+
+
+@pytest.mark.parametrize("delay", [0.04, -0.03])
+@pytest.mark.parametrize("with_before", [True, False])
+def test_capture_chord_of_a_braking_truck(delay, with_before):
+    """A truck braking at 2 m/s^2 on a straight road, keyframes 0.4, 0.5 and 0.6 s apart, its road
+    points seen ``delay`` after each keyframe: the chord they measure is the keyframes' chord plus
+    ``delay`` times the change of speed (4 cm short for 40 ms). The capture-time residual of the
+    true poses is zero with the keyframe before and without it (three-point speeds, and the pair's
+    mean speed the mean of its ends', are exact under constant acceleration); the plain chord's is
+    the whole bias."""
+    speed0, deceleration = 6.0, 2.0
+
+    def arc(t):  # distance driven by time t (s), still braking
+        return speed0 * t - 0.5 * deceleration * t * t
+
+    times = np.array([0.0, 0.4, 0.9, 1.5])
+    poses = [gtsam.Pose3(make_pose(np.eye(3), np.array([arc(t), 0.0, 0.0]))) for t in times]
+    measured = arc(times[2] + delay) - arc(times[1] + delay)  # the pair (1, 2)
+    plain = chord_error(poses[1], poses[2], 0.0, measured)[0][0]
+    assert abs(plain) == pytest.approx(abs(delay) * deceleration * 0.5, rel=1e-9)
+    intervals = np.diff(times)
+    weights = capture_chord_weights(delay, intervals[0] if with_before else None, intervals[1], intervals[2])
+    captured = capture_chord_error(*(poses if with_before else poses[1:]), axle_x=0.0, chord_length=measured, weights=weights)[0][0]
+    assert abs(captured) < 1e-9
+    with pytest.raises(ValueError, match="positive"):
+        capture_chord_weights(delay, None, 0.0, 0.5)
