@@ -283,6 +283,8 @@ _CAPTURE_SHIFT_M = 0.003
 _CAPTURE_TURN_RAD = float(np.radians(0.02))
 # a scale chord seen less than this after (or before) the keyframe times is taken at the keyframe times
 _MIN_CAPTURE_DELAY_S = 1e-4
+# ... and one seen more than this share of the keyframe interval away from them at constant speed
+_MAX_CAPTURE_DELAY_SHARE = 0.5
 
 
 def _pose_sigmas(rotation_rad: float, translation_m: float) -> gtsam.noiseModel.Base:
@@ -705,6 +707,13 @@ class ArticulatedSmoother:
         k = previous.index
         start = self._window.get(k - 1)  # the pair's first keyframe; its dt: the interval from k-2
         with_before = k - 2 in self._window and self._estimate.exists(X(k - 2)) and start is not None and start.dt > 0.0
+        intervals = [previous.dt, keyframe.dt] + ([start.dt] if with_before else [])
+        if abs(delay) > _MAX_CAPTURE_DELAY_SHARE * min(intervals):
+            # the speed's parabola is a first-order model of a delay short against the keyframe
+            # intervals; a camera that much later is more likely a clock problem: the chord stays as measured
+            logger.debug("frame %d: scale chord seen %.0f ms after the keyframe times, keyframes %.0f ms apart: taken at constant speed",
+                         previous.frame, 1e3 * delay, 1e3 * min(intervals))
+            return
         keys = tuple(X(i) for i in range(k - 2 if with_before else k - 1, keyframe.index + 1))
         weights = capture_chord_weights(delay, start.dt if with_before else None, previous.dt, keyframe.dt)
         pending.removals.append(index)
