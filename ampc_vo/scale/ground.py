@@ -110,9 +110,20 @@ The lane is also where the traffic ahead drives: a vehicle moving along the truc
 shadow on the road, are consistent with the ego-motion's epipolar geometry at
 another depth and read as chords tens of % short. So the lane's points are those within
 ``lane_consensus_tolerance`` (15 %) of the whole view's road (1-D consensus over every
-candidate, where the static road is the majority).
+candidate, where the static road is the majority). The lane's points may lie on one line (a lane
+marking, the rest of the lane hidden by the vehicle ahead in stop-and-go traffic): outside the
+lane a row of points at one height is rejected (a wall's row fits a horizontal plane), in the lane
+it lies on the road, and with the fitted plane its chord stands, the tilt across the line taken
+from the prior and its uncertainty in the chord's marginal (a marking 1.8 m to the side with the
+prior's 2° of roll: about 2.5 % at a camera 2.5 m high). The pair where stop_and_go's hard braking
+begins had only its right marking in view and no chord, and the smoother's made-up chord read
+0.17 m short there.
 
-**Capture times** (rolling shutter, unsynchronised cameras). A point is seen at its own times:
+**Capture times** (rolling shutter, unsynchronised cameras) and the chord's time: the chord is of
+the path between the points' capture times (mean delay ``MotionInit.scale_chord_delay_s``, used by
+the smoother, DESIGN 11 "Capture-time chords").
+
+A point is seen at its own times:
 its camera's image time plus its row's readout (``Camera.row_times``), in both keyframes. Over a
 constant-velocity arc the body moves by the keyframes' motion times ``s_k = (tau_j - tau_i) /
 (t_j - t_i)`` between the point's two observations, so (G) measures ``s_k rho``: each point's
@@ -785,7 +796,7 @@ def road_points_chord(
     per_camera = [_with_off_lane(points, curvature, options, driven, direction) for points in per_camera]
     lane = _within_lane(per_camera, road_chord, curvature, options, driven=driven, direction=direction)
     if lane is not None:
-        return _chord_of_points(lane, heights, options, yaw_sigma)
+        return _chord_of_points(lane, heights, options, yaw_sigma, in_lane=True)
     # too few points in the own lane: the whole view, unless the points near the path (twice the
     # lane's half width) measure a different chord (the road beyond is not the lane's plane)
     whole = _chord_of_points(per_camera, heights, options, yaw_sigma)
@@ -830,9 +841,14 @@ def _off_lane_sigma(measured: GroundChord, per_camera: Sequence[PointChords], op
     return dataclasses.replace(measured, sigma=float(np.hypot(measured.sigma, measured.chord * relative)))
 
 
-def _chord_of_points(per_camera: Sequence[PointChords], heights: np.ndarray, options: GroundScaleOptions, yaw_sigma: float) -> GroundChord:
+def _chord_of_points(per_camera: Sequence[PointChords], heights: np.ndarray, options: GroundScaleOptions, yaw_sigma: float,
+                     in_lane: bool = False) -> GroundChord:
     """The chord of :func:`ground_plane_chord` from the candidate road points of ``per_camera``
-    (plane fit or 1-D consensus, spread test, cameras combined, sigma with the height and normal terms)."""
+    (plane fit or 1-D consensus, spread test, cameras combined, sigma with the height and normal terms).
+    ``in_lane``: the candidates are the own lane's (:func:`_within_lane`), where a line of points (a
+    lane marking, the rest of the lane hidden by the vehicle ahead) lies on the road: with the
+    fitted plane its chord stands, the tilt the line cannot fix taken from the prior and counted
+    in the sigma (module docstring, "Own lane")."""
     chords = np.concatenate([points.chord[points.candidate] for points in per_camera])
     sigmas = np.concatenate([points.sigma[points.candidate] for points in per_camera])
     plane = fit_road_plane(per_camera, sigmas, options) if options.fit_plane else None
@@ -849,7 +865,7 @@ def _chord_of_points(per_camera: Sequence[PointChords], heights: np.ndarray, opt
         chord, statistical_sigma, inliers = consensus
     ground_xy = np.concatenate([points.ground_xy[points.candidate] for points in per_camera])[inliers]
     spread = float(np.sqrt(max(np.linalg.eigvalsh(np.cov(ground_xy.T))[0], 0.0)))
-    if spread < options.min_ground_spread_m:
+    if spread < options.min_ground_spread_m and not (in_lane and plane is not None):
         # a row of points at one height (e.g. along a wall) also looks like a horizontal "plane"
         logger.debug("ground consensus of %d points spans %.2f m across: a line, not a road", int(np.count_nonzero(inliers)), spread)
         return GroundChord(GroundScaleStatus.GROUND_ON_A_LINE, candidates=int(chords.size))

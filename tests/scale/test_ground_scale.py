@@ -548,3 +548,29 @@ def test_a_short_chord_is_measured_from_imprecise_road_points(seed: int, true_ch
     assert short.ok and abs(short.chord - true_chord) < 1.5 * short.sigma and short.sigma < true_chord
     narrow = dataclasses.replace(OPTIONS, short_chord_sigma_factor=1.0)
     assert ground_plane_chord(correspondences, _motion(0.0, 1.0), AXLE_X, narrow).sigma == pytest.approx(short.sigma / 3.0)
+
+
+def test_a_lane_marking_alone_in_the_own_lane_gives_the_chord() -> None:
+    """Stop-and-go traffic: the vehicle ahead hides the own lane but for its right marking (a line
+    of points 1.8 m to the side), the crowned road beyond the lane in view. The marking lies on the
+    road, so its chord stands (before: "a line, not a road", no chord), right within its sigma,
+    which carries the roll the line cannot fix (a few per cent). A row of points along a wall at one
+    height, beyond the lane, stays rejected. Checked over seeds."""
+    normalized, relative_sigmas = [], []
+    for seed in range(6):
+        rng = np.random.default_rng(90 + seed)
+        marking = np.column_stack([rng.uniform(6.0, 20.0, 14), np.full(14, -1.8) + rng.normal(0.0, 0.03, 14), np.zeros(14)])
+        road = _crowned_road(rng, 1200)
+        beyond = road[(road[:, 1] > 2.5) & (road[:, 0] > 12.0)][:60]  # the other lane beside and beyond the vehicle ahead
+        bearings = _observe(FRONT, np.concatenate([marking, beyond, _facade_points(rng, 60)]), _motion(0.0, 1.6), rng)
+        lane = ground_plane_chord([(FRONT, *bearings)], _motion(0.0, 1.0), AXLE_X, LANE)
+        assert lane.ok, lane.status
+        assert lane.inlier_count <= 14
+        normalized.append((lane.chord - 1.6) / lane.sigma)
+        relative_sigmas.append(lane.sigma / lane.chord)
+    assert np.max(np.abs(normalized)) < 3.0
+    assert 0.005 < np.median(relative_sigmas) < 0.06
+    rng = np.random.default_rng(4)
+    row = np.column_stack([rng.uniform(8, 30, 40), np.full(40, 7.0), np.full(40, 1.0)])
+    bearings_i, bearings_j = _observe(FRONT, row, _motion(0.0, 1.5), rng)
+    assert ground_plane_chord([(FRONT, bearings_i, bearings_j)], _motion(0.0, 1.0), AXLE_X, LANE).status is GroundScaleStatus.GROUND_ON_A_LINE
