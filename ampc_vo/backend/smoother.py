@@ -34,6 +34,11 @@ Factors added with keyframe k (``j`` < k are the keyframes still in the window):
   ``no_trailer_constraint``.
 * Scale aid: ``SmoothSpeedFactor`` over ``X(k-2), X(k-1), X(k)`` (and the trailer in
   ``separate``), DESIGN 2.3.
+* Measured chords of the tractor axle (``MotionInit.scale_chord``: ground plane, stereo; the
+  wheel's ``wheel_chord``), Gaussian. A chord whose road points were seen after the keyframe
+  times is that of the path between the capture times: a factor of its own at constant speed
+  until keyframe k+1 replaces it by the capture-time term over ``X(k-2) .. X(k+1)``
+  (:meth:`ArticulatedSmoother._add_scale_chord`, DESIGN 11 "Capture-time chords").
 * Recovery: at standstill a tight zero-motion prior; when a body has no motion estimate (too few
   tracks) or an unobservable scale, a weak prior on the predicted motion keeps the system
   well-posed.
