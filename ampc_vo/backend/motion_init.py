@@ -579,12 +579,13 @@ class MotionInitializer:
         # the time after the keyframes at which the road was seen: the chord is that of the path
         # between those times, which a speed change makes differ from the keyframes' (smoother,
         # factors.wheel_speed.capture_chord_error; DESIGN 11, "Capture-time chords")
-        delay = float(np.mean(np.concatenate(delays))) if delays and sum(map(len, delays)) else 0.0
+        delays = np.concatenate(delays) if delays else np.zeros(0)
+        delay = float(np.mean(delays)) if delays.size else 0.0
         if init.scale_chord is not None:  # independent measurements of the same chord
             other_chord, other_sigma = init.scale_chord
             weights = np.array([1.0 / sigma**2, 1.0 / other_sigma**2])
             chord, sigma = float(weights @ [chord, other_chord] / weights.sum()), float(1.0 / np.sqrt(weights.sum()))
-            delay = float(delay * weights[0] / weights.sum() + init.scale_chord_delay_s * weights[1] / weights.sum())
+            delay = float(weights @ [delay, init.scale_chord_delay_s] / weights.sum())
         T_tractor = init.T_tractor
         if init.tractor_status is MotionStatus.SCALE_UNOBSERVABLE:  # a better initial value than the predicted chord
             T_tractor = self._with_chord(T_tractor, chord)

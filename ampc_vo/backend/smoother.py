@@ -240,10 +240,9 @@ class _Keyframe:
     landmarks: dict = field(default_factory=dict)  # per camera: (usable indices, their landmark ids), computed once
     capture_twists: dict = field(default_factory=dict)  # per body: the twist its epipolar blocks' capture-time extrinsics were built with
     epipolar_factor: object = None  # the keyframe's StackedEpipolarFactor (replaced by _refresh_capture_twists)
-    # a scale chord seen after the keyframe times, (chord m, sigma m, delay s), and its constant-speed
-    # factor until the next keyframe replaces it (ArticulatedSmoother._add_scale_chord)
-    capture_chord: tuple[float, float, float] | None = None
-    capture_chord_factor: object = None
+    # a scale chord seen after the keyframe times until the next keyframe replaces its constant-speed
+    # factor: (that factor, chord m, sigma m, delay s) (ArticulatedSmoother._add_scale_chord)
+    capture_chord: tuple[object, float, float, float] | None = None
 
     def usable_landmarks(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
         """Indices of the camera's observations with a usable landmark id (:func:`match_landmarks`) and the ids."""
@@ -436,8 +435,7 @@ class ArticulatedSmoother:
             moved |= bool(np.linalg.norm(change[3:]) > _CAPTURE_SHIFT_M or np.linalg.norm(change[:3]) > _CAPTURE_TURN_RAD)
         if not moved:
             return False
-        graph = self._smoother.getFactors()
-        index = next((i for i in range(graph.size()) if graph.exists(i) and graph.at(i) is factor), None)
+        index = self._factor_index(factor)
         if index is None:
             return False
         pending = _Pending()
@@ -693,7 +691,13 @@ class ArticulatedSmoother:
             return
         factor = StackedFactor([term])
         pending.graph.add(factor)
-        keyframe.capture_chord, keyframe.capture_chord_factor = (chord, sigma, delay), factor
+        keyframe.capture_chord = (factor, chord, sigma, delay)
+
+    def _factor_index(self, factor: object) -> int | None:
+        """Index of ``factor`` (the object added) in the smoother's graph; None once it has left
+        the window (marginalised with its oldest key)."""
+        graph = self._smoother.getFactors()
+        return next((i for i in range(graph.size()) if graph.exists(i) and graph.at(i) is factor), None)
 
     def _complete_capture_chord(self, keyframe: _Keyframe, pending: _Pending) -> None:
         """Keyframe l has come: the previous keyframe k's chord seen after (or before) the keyframe
@@ -701,14 +705,12 @@ class ArticulatedSmoother:
         over k-2 (when still in the window), k-1, k and l, removed and added in this update. Nothing
         when that factor has left the window with its oldest pose."""
         previous = self._window.get(keyframe.index - 1)
-        if previous is None or previous.capture_chord_factor is None:
+        if previous is None or previous.capture_chord is None:
             return
-        factor, previous.capture_chord_factor = previous.capture_chord_factor, None
-        graph = self._smoother.getFactors()
-        index = next((i for i in range(graph.size()) if graph.exists(i) and graph.at(i) is factor), None)
+        (factor, chord, sigma, delay), previous.capture_chord = previous.capture_chord, None
+        index = self._factor_index(factor)
         if index is None:
             return
-        chord, sigma, delay = previous.capture_chord
         k = previous.index
         start = self._window.get(k - 1)  # the pair's first keyframe; its dt: the interval from k-2
         with_before = k - 2 in self._window and self._estimate.exists(X(k - 2)) and start is not None and start.dt > 0.0
