@@ -442,6 +442,10 @@ class MotionInitializer:
             tractor = dataclasses.replace(tractor, T_i_j=ground.T_tractor)
         trailer_pairs = camera_pairs(self.rig, "trailer", first, second)
         trailer_axle_x = self.rig.axle_x("trailer")
+        T_trailer = None
+        if tractor.status is MotionStatus.TOO_FEW_TRACKS and self.config.mode in ("full", "no_trailer_constraint"):
+            tractor, T_trailer, carried_inliers = self._carried_by_trailer(tractor, trailer_pairs, hitch_prior)
+            inliers.update(carried_inliers)
         if tractor.status is MotionStatus.STANDSTILL:
             trailer_status = MotionStatus.STANDSTILL
         elif tractor.status in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE) and sum(len(p) for p in trailer_pairs) >= self.config.keyframes.min_tracks:
@@ -474,7 +478,6 @@ class MotionInitializer:
             if estimate.ok:
                 hitch_prev, hitch, trailer_status = estimate.hitch_angle_i, estimate.hitch_angle_j, MotionStatus.OK
                 inliers.update(_inlier_tracks(trailer_pairs, estimate.inlier_masks))
-        T_trailer = None
         if self.config.mode == "separate":
             predicted = predicted_trailer if predicted_trailer is not None else straight_motion(tractor.chord)
             if tractor.status is MotionStatus.STANDSTILL:
@@ -495,6 +498,37 @@ class MotionInitializer:
         if ground is not None and tractor.T_i_j is ground.T_tractor:  # the motion it measured with (no joint refinement since)
             return self._driven(dataclasses.replace(init, scale_chord=ground.scale_chord))
         return self._driven(self._with_ground_scale(init, tractor_pairs, first, second, tractor.estimate.yaw_sigma, speed_bounds))
+
+    def _carried_by_trailer(self, tractor: TractorMotion, trailer_pairs: list[CameraPairs],
+                            hitch_prior: float | None) -> tuple[TractorMotion, np.ndarray | None, dict[str, np.ndarray]]:
+        """A tractor whose cameras have too few tracks (a cab camera facing an empty yard or a
+        blank dock, a broken camera) carried by the trailer's: the trailer's own motion from its
+        cameras (the 2-point solver at its axle group, DESIGN 2.1), and as the tractor's initial
+        motion the bodies turning together about the king-pin (the hitch held, the body origins
+        at the king-pin: ``T_tractor = H T_trailer H^-1``, ``H = Rz(theta)``). Returns the tractor
+        motion (still ``TOO_FEW_TRACKS``: not measured, the smoother gives it the weak prior and
+        takes it from the trailer's cameras through the joint and non-holonomic factors, with their
+        uncertainty), the trailer's motion (None: not measured either) and the trailer's inliers.
+
+        Without it the tractor's initial motion was the constant-velocity prediction, at rest after a
+        stop: every keyframe pair then looked like a standstill to the smoother, which dropped the
+        trailer's epipolar factors too, and a reversing truck's hitch went 6 deg off at a sigma of
+        1.3 deg (realistic yard without the mirror cameras, bearings). The chord the trailer's solver
+        cannot fix (straight, or too little turn) is the prediction's, at least twice
+        ``keyframes.standstill_distance_m`` (a drive-off from rest moves: the trailer's tracks showed
+        parallax); the window's scale comes from the priors then."""
+        if self._trailer_config is None or sum(len(pair) for pair in trailer_pairs) < self.config.keyframes.min_tracks:
+            return tractor, None, {}
+        chord_prior = max(float(np.linalg.norm(tractor.T_i_j[:3, 3])), 2.0 * self.config.keyframes.standstill_distance_m)
+        own = estimate_tractor_motion(trailer_pairs, self.rig.axle_x("trailer"), self._trailer_config, chord_prior=chord_prior, rng=self._rng)
+        status = _status(own.status)
+        if status not in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE, MotionStatus.STANDSTILL) or own.T_i_j is None:
+            return tractor, None, {}
+        hitch = make_pose(rot_z(hitch_prior if hitch_prior is not None else 0.0), np.zeros(3))
+        T_tractor = hitch @ own.T_i_j @ invert_pose(hitch)
+        logger.debug("tractor without tracks carried by the trailer's cameras (%s): chord %.3f m, yaw change %.2f deg", status.value,
+                     float(np.linalg.norm(T_tractor[:2, 3])), np.degrees(yaw_of(T_tractor)))
+        return dataclasses.replace(tractor, T_i_j=T_tractor), own.T_i_j, _inlier_tracks(trailer_pairs, own.inlier_masks)
 
     def _driven(self, init: MotionInit) -> MotionInit:
         """``init``, its tractor motion kept as the newest piece of the path driven (:meth:`_driven_path`)."""

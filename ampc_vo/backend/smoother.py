@@ -164,7 +164,7 @@ class MotionInit:
 
     ``T_tractor`` (4x4): tractor motion ``T_prev_k``. ``hitch_prev``/``hitch`` (θ at the previous
     keyframe and at this one) from the trailer 1-point RANSAC, ``None`` if not estimated.
-    ``T_trailer``: the trailer's own motion (mode ``separate``), ``None`` if not estimated.
+    ``T_trailer``: the trailer's own motion (mode ``separate``; in the joint modes when it carries a tractor without tracks), ``None`` if not estimated.
     """
 
     T_tractor: np.ndarray
@@ -786,8 +786,10 @@ class ArticulatedSmoother:
         return float(self._estimate.atDouble(W(newest))), self._marginal_sigma(W(newest))
 
     def _initial_hitch(self, keyframe: _Keyframe, pending: _Pending) -> float:
-        """θ_k: the window's θ_{k-1} plus the 1-point RANSAC's change of θ over the pair if any, else held (standstill) or predicted by the
-        trailer non-holonomic closed form ``ψ = 2 atan2(w_y, w_x + 2 s_B)`` (DESIGN 2)."""
+        """θ_k: the window's θ_{k-1} plus the 1-point RANSAC's change of θ over the pair if any, else held (standstill), the
+        change that makes the trailer's initial motion its own measured one (``MotionInit.T_trailer``: a tractor
+        without tracks carried by the trailer), or predicted by the trailer non-holonomic closed form
+        ``ψ = 2 atan2(w_y, w_x + 2 s_B)`` (DESIGN 2)."""
         init = keyframe.init
         previous = self._double(A(keyframe.index - 1), pending)
         if init.hitch is not None and init.trailer_status is MotionStatus.OK:
@@ -799,6 +801,8 @@ class ArticulatedSmoother:
             return float(init.hitch)
         if init.tractor_status is MotionStatus.STANDSTILL:
             return previous
+        if init.T_trailer is not None:  # the trailer's own motion measured (a tractor carried by it): the initial poses follow it
+            return float(wrap_angle(previous + yaw_of(init.T_trailer) - yaw_of(init.T_tractor)))
         s_b = -self.rig.axle_x("trailer")
         w = rot_z(-previous) @ init.T_tractor[:3, 3]
         psi = 2.0 * np.arctan2(w[1], w[0] + 2.0 * s_b)

@@ -364,3 +364,51 @@ def test_the_trailer_ransac_gets_the_ground_planes_chord_where_the_tracks_fixed_
     init = initializer.keyframe(first, second, tractor, 0.0)
     assert seen and seen[0] == pytest.approx(0.65, abs=0.01)
     assert init.scale_chord == pytest.approx((0.65, 0.03)) and np.linalg.norm(init.T_tractor[:2, 3]) == pytest.approx(0.65, abs=0.01)
+
+
+def _observe(rig, body: str, points_i: np.ndarray, points_j: np.ndarray, limit: int | None = None) -> tuple[dict, dict]:
+    """``body``'s cameras' observations of points given in that body's frame at views i and j."""
+    first, second = {}, {}
+    for camera in rig.cameras_on(body):
+        T_camera_body = np.linalg.inv(camera.T_body_camera)
+        pixels_i, seen_i = camera.project(points_i @ T_camera_body[:3, :3].T + T_camera_body[:3, 3])
+        pixels_j, seen_j = camera.project(points_j @ T_camera_body[:3, :3].T + T_camera_body[:3, 3])
+        seen = np.flatnonzero(seen_i & seen_j)[:limit]
+        first[camera.name] = CameraObservations(camera.name, seen, pixels_i[seen], camera.unproject(pixels_i[seen]))
+        second[camera.name] = CameraObservations(camera.name, seen, pixels_j[seen], camera.unproject(pixels_j[seen]))
+    return first, second
+
+
+def test_a_tractor_without_tracks_is_carried_by_the_trailers_cameras() -> None:
+    """Reversing from rest into a turn (hitch -20 deg), the tractor's cameras see almost nothing (5
+    tracks: a cab camera facing an empty yard, the mirrors gone) and its motion is the prediction,
+    at rest. The trailer's cameras measure the trailer's own motion (0.9 m back, 1.5 deg); the
+    tractor's initial motion is then the bodies turning together about the king-pin (the hitch held),
+    not the prediction's standstill: with that, the smoother dropped the trailer's epipolar factors too
+    and a reversing truck's hitch went 6 deg off at a sigma of 1.3 deg."""
+    rng = np.random.default_rng(12)
+    theta = np.radians(-20.0)
+    T_trailer = make_pose(*ackermann_motion(np.radians(1.5), -0.9, SEMITRAILER.axle_x("trailer")))
+    world = np.column_stack([rng.uniform(-45, 15, 1500), rng.choice([-1.0, 1.0], 1500) * rng.uniform(4, 25, 1500), rng.uniform(-1.2, 5.0, 1500)])
+    world_j = (world - T_trailer[:3, 3]) @ T_trailer[:3, :3]
+    first, second = _observe(SEMITRAILER, "trailer", world, world_j, limit=150)
+    H = make_pose(rot_z(theta), np.zeros(3))
+    tractor_points = world @ H[:3, :3].T  # the same world in the tractor frame (body origins at the king-pin)
+    T_tractor_true = H @ T_trailer @ np.linalg.inv(H)  # hitch held: what the carried initial motion should be
+    tractor_first, tractor_second = _observe(SEMITRAILER, "tractor", tractor_points, (tractor_points - T_tractor_true[:3, 3]) @ T_tractor_true[:3, :3], limit=5)
+    tractor_first, tractor_second = ({"cab_front": observations["cab_front"]} for observations in (tractor_first, tractor_second))
+    frames = FrameObservations(0, 0.0, {**first, **tractor_first}), FrameObservations(1, 1.0, {**second, **tractor_second})
+    assert sum(len(first[name]) for name in first) > 100 and sum(len(obs) for obs in tractor_first.values()) < VoConfig().keyframes.min_tracks
+    initializer = MotionInitializer(SEMITRAILER, VoConfig())
+    tractor = initializer.tractor(*frames, np.eye(4), speed_before=0.0, hitch=theta)
+    assert tractor.status is MotionStatus.TOO_FEW_TRACKS
+    init = initializer.keyframe(*frames, tractor, theta)
+    assert init.tractor_status is MotionStatus.TOO_FEW_TRACKS  # not a measurement of the tractor
+    assert init.T_trailer is not None
+    assert np.degrees(np.arctan2(init.T_trailer[1, 0], init.T_trailer[0, 0])) == pytest.approx(1.5, abs=0.05)
+    direction = init.T_trailer[:2, 3] / np.linalg.norm(init.T_trailer[:2, 3])
+    assert direction == pytest.approx(T_trailer[:2, 3] / np.linalg.norm(T_trailer[:2, 3]), abs=2e-3)  # backwards, along the measured line
+    assert np.degrees(np.arctan2(init.T_tractor[1, 0], init.T_tractor[0, 0])) == pytest.approx(1.5, abs=0.05)
+    assert init.T_tractor[:2, 3] / np.linalg.norm(init.T_tractor[:2, 3]) == pytest.approx(T_tractor_true[:2, 3] / np.linalg.norm(T_tractor_true[:2, 3]), abs=2e-3)
+    assert np.linalg.norm(init.T_tractor[:2, 3]) >= 2.0 * VoConfig().keyframes.standstill_distance_m
+    assert sum(len(ids) for name, ids in init.inlier_tracks.items() if name.startswith("trailer")) > 100
