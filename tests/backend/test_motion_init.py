@@ -1,6 +1,7 @@
 """MotionInitializer (DESIGN 2.1): a standstill must be physically possible (issue 16)."""
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -412,3 +413,7 @@ def test_a_tractor_without_tracks_is_carried_by_the_trailers_cameras() -> None:
     assert init.T_tractor[:2, 3] / np.linalg.norm(init.T_tractor[:2, 3]) == pytest.approx(T_tractor_true[:2, 3] / np.linalg.norm(T_tractor_true[:2, 3]), abs=2e-3)
     assert np.linalg.norm(init.T_tractor[:2, 3]) >= 2.0 * VoConfig().keyframes.standstill_distance_m
     assert sum(len(ids) for name, ids in init.inlier_tracks.items() if name.startswith("trailer")) > 100
+    # a moving prediction (the truck was driving) is kept: it carries the hitch's rate on
+    moving = make_pose(*ackermann_motion(np.radians(3.0), -1.0, SEMITRAILER.axle_x("tractor")))
+    kept = MotionInitializer(SEMITRAILER, VoConfig()).keyframe(*frames, dataclasses.replace(tractor, T_i_j=moving), theta)
+    assert kept.T_trailer is None and kept.T_tractor == pytest.approx(moving)
