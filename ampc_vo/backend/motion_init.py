@@ -443,8 +443,7 @@ class MotionInitializer:
         trailer_pairs = camera_pairs(self.rig, "trailer", first, second)
         trailer_axle_x = self.rig.axle_x("trailer")
         T_trailer = None
-        if (tractor.status is MotionStatus.TOO_FEW_TRACKS and self.config.mode in ("full", "no_trailer_constraint")
-                and float(np.linalg.norm(tractor.T_i_j[:2, 3])) < 2.0 * self.config.keyframes.standstill_distance_m):
+        if tractor.status is MotionStatus.TOO_FEW_TRACKS and self.config.mode in ("full", "no_trailer_constraint"):
             tractor, T_trailer, carried_inliers = self._carried_by_trailer(tractor, trailer_pairs, hitch_prior)
             inliers.update(carried_inliers)
         if tractor.status is MotionStatus.STANDSTILL:
@@ -510,22 +509,23 @@ class MotionInitializer:
         ``T_tractor = H T_trailer H^-1``, ``H = Rz(theta)``). Returns the tractor
         motion (still ``TOO_FEW_TRACKS``: not measured, the smoother gives it the weak prior and
         takes it from the trailer's cameras through the joint and non-holonomic factors, with their
-        uncertainty), the trailer's motion (None: not measured either) and the trailer's inliers.
+        uncertainty), the trailer's motion and the trailer's inliers; the tractor unchanged, None
+        and no inliers where the prediction moves or the trailer's cameras measure nothing either.
 
         Without it the tractor's initial motion was the constant-velocity prediction, at rest after a
         stop: every keyframe pair then looked like a standstill to the smoother, which dropped the
         trailer's epipolar factors too, and a reversing truck's hitch went 6 deg off at a sigma of
         1.3 deg (realistic yard without the mirror cameras, bearings). The chord the trailer's solver
-        cannot fix (straight, or too little turn) is the prediction's, at least twice
-        ``keyframes.standstill_distance_m`` (a drive-off from rest moves: the trailer's tracks showed
-        parallax); the window's scale comes from the priors then. A moving prediction is kept (the
-        caller asks only at rest): the constant-velocity motion carries the hitch's rate on, which
-        the hitch held does not (check tight_yard without the mirrors: hitch RMSE 0.19 deg against
-        0.34 deg carried on every pair)."""
-        if self._trailer_config is None or sum(len(pair) for pair in trailer_pairs) < self.config.keyframes.min_tracks:
+        cannot fix (straight, or too little turn) is twice ``keyframes.standstill_distance_m`` (a
+        drive-off from rest moves: the trailer's tracks showed parallax); the window's scale comes
+        from the priors then. A moving prediction is kept: the constant-velocity motion carries the
+        hitch's rate on, which the hitch held does not (check tight_yard without the mirrors: hitch
+        RMSE 0.19 deg against 0.34 deg carried on every pair)."""
+        least_chord = 2.0 * self.config.keyframes.standstill_distance_m
+        if (self._trailer_config is None or float(np.linalg.norm(tractor.T_i_j[:2, 3])) >= least_chord
+                or sum(len(pair) for pair in trailer_pairs) < self.config.keyframes.min_tracks):
             return tractor, None, {}
-        chord_prior = max(float(np.linalg.norm(tractor.T_i_j[:3, 3])), 2.0 * self.config.keyframes.standstill_distance_m)
-        own = estimate_tractor_motion(trailer_pairs, self.rig.axle_x("trailer"), self._trailer_config, chord_prior=chord_prior, rng=self._rng)
+        own = estimate_tractor_motion(trailer_pairs, self.rig.axle_x("trailer"), self._trailer_config, chord_prior=least_chord, rng=self._rng)
         status = _status(own.status)
         if status not in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE, MotionStatus.STANDSTILL) or own.T_i_j is None:
             return tractor, None, {}
