@@ -69,6 +69,12 @@ def make_pose(rotation: ArrayF, translation: ArrayF) -> ArrayF:
     return pose
 
 
+def hitch_transform(hitch_angle: float) -> ArrayF:
+    """``T_tractor_trailer = (Rz(theta), 0)`` (4x4): both body frames have their origin at the
+    hitch (DESIGN 1; ``factors._lie.hitch_pose`` is the GTSAM form)."""
+    return make_pose(rot_z(hitch_angle), np.zeros(3))
+
+
 def invert_pose(pose: ArrayF) -> ArrayF:
     """Inverse of a 4x4 rigid transform."""
     rotation = pose[:3, :3]

@@ -22,7 +22,7 @@ import numpy as np
 
 from ampc_vo.config import VoConfig
 from ampc_vo.epipolar import gec_sampson
-from ampc_vo.geometry import invert_pose, make_pose, rays_hit_box, rot_z, yaw_of
+from ampc_vo.geometry import hitch_transform, invert_pose, make_pose, rays_hit_box, rot_z, yaw_of
 from ampc_vo.scale.ground import GroundScaleOptions, axle_displacement, ground_plane_chord
 from ampc_vo.observations import FrameObservations, match_tracks
 from ampc_vo.rig import BodyBox, Camera, Rig
@@ -529,7 +529,7 @@ class MotionInitializer:
         status = _status(own.status)
         if status not in (MotionStatus.OK, MotionStatus.SCALE_UNOBSERVABLE, MotionStatus.STANDSTILL) or own.T_i_j is None:
             return tractor, None, {}
-        hitch = make_pose(rot_z(hitch_prior if hitch_prior is not None else 0.0), np.zeros(3))
+        hitch = hitch_transform(hitch_prior if hitch_prior is not None else 0.0)
         T_tractor = hitch @ own.T_i_j @ invert_pose(hitch)
         logger.debug("tractor without tracks carried by the trailer's cameras (%s): chord %.3f m, yaw change %.2f deg", status.value,
                      float(np.linalg.norm(T_tractor[:2, 3])), np.degrees(yaw_of(T_tractor)))

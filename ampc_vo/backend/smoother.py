@@ -80,7 +80,7 @@ from gtsam.symbol_shorthand import A, B, W, X, Y
 from ampc_vo.config import VoConfig
 from ampc_vo.epipolar import gec_sampson
 from ampc_vo.errors import first_line
-from ampc_vo.geometry import make_pose, relative_pose, rot_z, wrap_angle, yaw_of
+from ampc_vo.geometry import hitch_transform, make_pose, relative_pose, rot_z, wrap_angle, yaw_of
 from ampc_vo.observations import CameraObservations, FrameObservations, match_tracks, usable_landmarks
 from ampc_vo.rig import Camera, Rig
 from factors._custom import POSE, SCALAR
@@ -177,8 +177,9 @@ class MotionInit:
     wheel_chord: float | None = None  # measured chord of the tractor axle midpoint (wheel odometry), metres
     # visual metric-scale measurement of the same chord (e.g. ground-plane scale): (chord m, sigma m)
     scale_chord: tuple[float, float] | None = None
-    # mean time (s) after the keyframe times at which the scale chord's points were seen (camera
-    # offsets and row readout): the chord is that of the path between the capture times
+    # mean time (s) after the keyframe times at which the scale chord's tracks were seen (camera
+    # offsets and row readout; over the measuring cameras' inlier tracks, the road points among
+    # them): the chord is that of the path between the capture times
     # (factors.wheel_speed.capture_chord_error; 0: at the keyframe times)
     scale_chord_delay_s: float = 0.0
 
@@ -208,7 +209,7 @@ def _with_hitch_of(held: KeyframeEstimate, mover: KeyframeEstimate) -> KeyframeE
         return held
     T_world_trailer = held.T_world_trailer
     if T_world_trailer is not None:
-        T_world_trailer = T_world_trailer @ make_pose(rot_z(mover.hitch_angle - held.hitch_angle), np.zeros(3))
+        T_world_trailer = T_world_trailer @ hitch_transform(mover.hitch_angle - held.hitch_angle)
     return replace(held, hitch_angle=mover.hitch_angle, hitch_sigma=mover.hitch_sigma, T_world_trailer=T_world_trailer)
 
 
@@ -576,7 +577,7 @@ class ArticulatedSmoother:
         if not self.use_trailer:
             return
         hitch = next_init.hitch_prev if next_init.hitch_prev is not None else 0.0
-        T_world_trailer = T_world_tractor @ make_pose(rot_z(hitch), np.zeros(3))
+        T_world_trailer = T_world_tractor @ hitch_transform(hitch)
         pending.insert(Y(first.index), T_world_trailer, first.timestamp)
         if self._trailer_crab:
             self._add_scalar_prior(B(first.index), 0.0, self._crab_sigma, first.timestamp, pending)
@@ -618,7 +619,7 @@ class ArticulatedSmoother:
             if self.joint:
                 hitch = self._initial_hitch(keyframe, pending)
                 pending.insert(A(k), hitch, keyframe.timestamp)
-                pending.insert(Y(k), T_world_tractor @ make_pose(rot_z(hitch), np.zeros(3)), keyframe.timestamp)
+                pending.insert(Y(k), T_world_tractor @ hitch_transform(hitch), keyframe.timestamp)
                 self._add_joint_loop(k, pending)
                 self._add_hitch_limit(k, pending)
                 sigma = self._hitch_step_sigma(keyframe)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ampc_vo.errors import DatasetError
-from ampc_vo.geometry import make_pose, pose_from_xyz_quat, rot_z
+from ampc_vo.geometry import hitch_transform, pose_from_xyz_quat
 from ampc_vo.io.groundtruth import GroundTruth
 
 POSE_TOPIC_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped")
@@ -72,7 +72,7 @@ def groundtruth_from_poses(timestamps: np.ndarray, T_world_tractor: np.ndarray, 
     if hitch is None:
         return GroundTruth(timestamps, T_world_tractor, trailer_axle_x=trailer_axle_x)
     angles = np.interp(timestamps, hitch[0], hitch[1])
-    trailer = np.array([T @ make_pose(rot_z(angle), np.zeros(3)) for T, angle in zip(T_world_tractor, angles)])
+    trailer = np.array([T @ hitch_transform(angle) for T, angle in zip(T_world_tractor, angles)])
     return GroundTruth(timestamps, T_world_tractor, trailer, angles, trailer_axle_x)
 
 

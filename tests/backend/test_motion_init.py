@@ -78,12 +78,12 @@ def _with_box(rig):
     return dataclasses.replace(rig, bodies={**rig.bodies, "trailer": trailer})
 
 
-def _observe_tractor(rig, points_i: np.ndarray, points_j: np.ndarray, frame_j: int, noise_px: float = 0.0,
-                     rng: np.random.Generator | None = None, limit: int | None = None) -> tuple[dict, dict]:
-    """Tractor cameras' observations of points given in the tractor frame at views i and j (at most
-    ``limit`` per camera, with ``noise_px`` of Gaussian pixel noise drawn from ``rng``)."""
+def _observe(rig, body: str, points_i: np.ndarray, points_j: np.ndarray, noise_px: float = 0.0,
+             rng: np.random.Generator | None = None, limit: int | None = None) -> tuple[dict, dict]:
+    """``body``'s cameras' observations of points given in that body's frame at views i and j (at
+    most ``limit`` per camera, with ``noise_px`` of Gaussian pixel noise drawn from ``rng``)."""
     first, second = {}, {}
-    for camera in rig.cameras_on("tractor"):
+    for camera in rig.cameras_on(body):
         T_camera_body = np.linalg.inv(camera.T_body_camera)
         pixels_i, seen_i = camera.project(points_i @ T_camera_body[:3, :3].T + T_camera_body[:3, 3])
         pixels_j, seen_j = camera.project(points_j @ T_camera_body[:3, :3].T + T_camera_body[:3, 3])
@@ -112,7 +112,7 @@ def test_tracks_on_the_trailer_box_are_left_out_of_the_tractor_motion() -> None:
     box = np.column_stack([rng.uniform(-12.4, 0.8, 2500), rng.choice([-1.25, 1.25], 2500), rng.uniform(0.0, 2.7, 2500)])
     world_j = (world - T_i_j[:3, 3]) @ T_i_j[:3, :3]
     box_i, box_j = box @ rot_z(theta_i).T, box @ rot_z(theta_j).T
-    first, second = _observe_tractor(SEMITRAILER, np.concatenate([world, box_i]), np.concatenate([world_j, box_j]), 1)
+    first, second = _observe(SEMITRAILER, "tractor", np.concatenate([world, box_i]), np.concatenate([world_j, box_j]))
     frames = FrameObservations(0, 0.0, first), FrameObservations(1, 1.0, second)
     on_box = sum(int(np.count_nonzero(obs.track_ids >= len(world))) for obs in first.values())
     assert on_box > sum(len(obs) for obs in first.values()) / 2  # the box is most of what the tractor cameras see
@@ -259,7 +259,7 @@ def _still_and_creeping(rig, creep_m: float, noise_px: float, rng: np.random.Gen
     world = world[np.hypot(world[:, 0], world[:, 1]) > 5.0]
     T_i_j = make_pose(*ackermann_motion(0.0, creep_m, axle_x))
     world_j = (world - T_i_j[:3, 3]) @ T_i_j[:3, :3]
-    first, second = _observe_tractor(rig, world, world_j, 10, noise_px, rng, limit=60)
+    first, second = _observe(rig, "tractor", world, world_j, noise_px, rng, limit=60)
     return FrameObservations(0, 0.0, first), FrameObservations(10, 1.0, second)
 
 
@@ -365,19 +365,6 @@ def test_the_trailer_ransac_gets_the_ground_planes_chord_where_the_tracks_fixed_
     init = initializer.keyframe(first, second, tractor, 0.0)
     assert seen and seen[0] == pytest.approx(0.65, abs=0.01)
     assert init.scale_chord == pytest.approx((0.65, 0.03)) and np.linalg.norm(init.T_tractor[:2, 3]) == pytest.approx(0.65, abs=0.01)
-
-
-def _observe(rig, body: str, points_i: np.ndarray, points_j: np.ndarray, limit: int | None = None) -> tuple[dict, dict]:
-    """``body``'s cameras' observations of points given in that body's frame at views i and j."""
-    first, second = {}, {}
-    for camera in rig.cameras_on(body):
-        T_camera_body = np.linalg.inv(camera.T_body_camera)
-        pixels_i, seen_i = camera.project(points_i @ T_camera_body[:3, :3].T + T_camera_body[:3, 3])
-        pixels_j, seen_j = camera.project(points_j @ T_camera_body[:3, :3].T + T_camera_body[:3, 3])
-        seen = np.flatnonzero(seen_i & seen_j)[:limit]
-        first[camera.name] = CameraObservations(camera.name, seen, pixels_i[seen], camera.unproject(pixels_i[seen]))
-        second[camera.name] = CameraObservations(camera.name, seen, pixels_j[seen], camera.unproject(pixels_j[seen]))
-    return first, second
 
 
 def test_a_tractor_without_tracks_is_carried_by_the_trailers_cameras() -> None:
