@@ -4,8 +4,9 @@ storage) and bare ``.mcap`` files, through the ``rosbags`` library.
 A :class:`Recording` presents the interface the image frontend reads our dataset folder through
 (:class:`ampc_vo.io.folder.Dataset`): ``rig``, ``timestamps``, ``camera_names``,
 ``camera_timestamps``, ``__len__`` and ``load_image(frame, camera)``. Each rig camera names the
-topic of its images (rig.yaml camera key ``topic``) carrying ``sensor_msgs/Image`` (mono8, mono16,
-bgr8, rgb8, bgra8, rgba8) or ``sensor_msgs/CompressedImage`` (JPEG, PNG); each image's header stamp
+topic of its images (rig.yaml camera key ``topic``) carrying ``sensor_msgs/Image`` (mono8/16, bgr8/16,
+rgb8/16, bgra, rgba, 8UC1/3/4, 16UC1, yuv422 (UYVY) and yuv422_yuy2, Bayer mosaics bayer_rggb8/16 and the
+other three patterns, demosaiced) or ``sensor_msgs/CompressedImage`` (JPEG, PNG); each image's header stamp
 is its capture time (DESIGN section 5: the cameras need not be synchronised).
 
 Frames (:func:`group_frames`): the camera with the most images (among those at the slowest rate)
@@ -48,10 +49,23 @@ COMPRESSED_IMAGE_TYPE = "sensor_msgs/msg/CompressedImage"
 IMAGE_TYPES = (IMAGE_TYPE, COMPRESSED_IMAGE_TYPE)
 LOG_SUFFIXES = (".bag", ".mcap", ".db3")
 PROGRESS_MIN_MESSAGES = 500  # index pass over more messages than this shows a progress bar
-# raw encodings: (numpy dtype, channels, OpenCV conversion to grey or None)
+# raw encodings (sensor_msgs/image_encodings.h): (numpy dtype, channels, OpenCV conversion to grey or None)
 _ENCODINGS = {"mono8": (np.uint8, 1, None), "8UC1": (np.uint8, 1, None), "mono16": (np.uint16, 1, None), "16UC1": (np.uint16, 1, None),
-              "bgr8": (np.uint8, 3, "COLOR_BGR2GRAY"), "rgb8": (np.uint8, 3, "COLOR_RGB2GRAY"),
-              "bgra8": (np.uint8, 4, "COLOR_BGRA2GRAY"), "rgba8": (np.uint8, 4, "COLOR_RGBA2GRAY")}
+              "bgr8": (np.uint8, 3, "COLOR_BGR2GRAY"), "8UC3": (np.uint8, 3, "COLOR_BGR2GRAY"), "rgb8": (np.uint8, 3, "COLOR_RGB2GRAY"),
+              "bgra8": (np.uint8, 4, "COLOR_BGRA2GRAY"), "8UC4": (np.uint8, 4, "COLOR_BGRA2GRAY"), "rgba8": (np.uint8, 4, "COLOR_RGBA2GRAY"),
+              "bgr16": (np.uint16, 3, "COLOR_BGR2GRAY"), "rgb16": (np.uint16, 3, "COLOR_RGB2GRAY"),
+              "bgra16": (np.uint16, 4, "COLOR_BGRA2GRAY"), "rgba16": (np.uint16, 4, "COLOR_RGBA2GRAY"),
+              # YUV 4:2:2, two bytes per pixel: ROS "yuv422" is UYVY, "yuv422_yuy2" is YUYV (the grey image is the Y bytes)
+              "yuv422": (np.uint8, 2, "COLOR_YUV2GRAY_UYVY"), "uyvy": (np.uint8, 2, "COLOR_YUV2GRAY_UYVY"),
+              "yuv422_yuy2": (np.uint8, 2, "COLOR_YUV2GRAY_YUY2"), "yuyv": (np.uint8, 2, "COLOR_YUV2GRAY_YUY2")}
+# raw Bayer mosaics of colour cameras without on-board demosaicing, demosaiced to grey. ROS names the
+# pattern by its first row from the top left, OpenCV by the second row's second and third pixels:
+# ROS bayer_rggb is OpenCV's BayerBG (as cv_bridge converts them; tests/io/test_bags.py checks it)
+_BAYER_PATTERNS = {"rggb": "COLOR_BayerBG2GRAY", "bggr": "COLOR_BayerRG2GRAY", "gbrg": "COLOR_BayerGR2GRAY", "grbg": "COLOR_BayerGB2GRAY"}
+for _pattern, _conversion in _BAYER_PATTERNS.items():
+    _ENCODINGS[f"bayer_{_pattern}8"] = (np.uint8, 1, _conversion)
+    _ENCODINGS[f"bayer_{_pattern}16"] = (np.uint16, 1, _conversion)
+_SIXTEEN_BIT = tuple(name for name, (dtype, _, _) in _ENCODINGS.items() if dtype == np.uint16)
 
 
 def is_log(path: str | Path) -> bool:
@@ -301,7 +315,9 @@ def decode_image_message(message: object, msgtype: str, where: str) -> np.ndarra
     image = np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(">" if message.is_bigendian else "<")).reshape(height, width, channels)
     if itemsize == 2:
         image = (image.astype(np.uint16) >> 8).astype(np.uint8)
-    image = image[:, :, 0] if channels == 1 else cv2.cvtColor(image, getattr(cv2, conversion))
+    image = image[:, :, 0] if channels == 1 else image
+    if conversion is not None:
+        image = cv2.cvtColor(np.ascontiguousarray(image), getattr(cv2, conversion))
     return np.ascontiguousarray(image)
 
 
@@ -430,7 +446,7 @@ class Recording:
 
         image = decode_image_message(message, msgtype, where)
         _check_size(where, image, self.rig.camera(camera))
-        if camera not in self._low_bit_depth_checked and msgtype == IMAGE_TYPE and message.encoding in ("mono16", "16UC1"):
+        if camera not in self._low_bit_depth_checked and msgtype == IMAGE_TYPE and message.encoding in _SIXTEEN_BIT:
             self._low_bit_depth_checked.add(camera)
             raw = np.frombuffer(message.data, dtype=">u2" if message.is_bigendian else "<u2")
             if 0 < int(raw.max()) < 4096:

@@ -153,8 +153,41 @@ def test_raw_encodings_decode_to_the_same_grey_image():
     wide = grey.astype(np.uint16) * 256 + 77  # 16-bit: the top byte
     for bigendian in (False, True):
         np.testing.assert_array_equal(decode_image_message(_Image(wide, "mono16", bigendian), "sensor_msgs/msg/Image", "t"), grey)
-    with pytest.raises(DatasetError, match="encoding 'yuv422' not supported"):
-        decode_image_message(_Image(grey, "yuv422"), "sensor_msgs/msg/Image", "t")
+    np.testing.assert_array_equal(decode_image_message(_Image(bgr, "8UC3"), "sensor_msgs/msg/Image", "t"), grey)
+    np.testing.assert_array_equal(decode_image_message(_Image(bgr.astype(np.uint16) * 256 + 77, "bgr16", True), "sensor_msgs/msg/Image", "t"), grey)
+    with pytest.raises(DatasetError, match="encoding 'nv21' not supported"):
+        decode_image_message(_Image(grey, "nv21"), "sensor_msgs/msg/Image", "t")
+
+
+def test_yuv422_gives_the_luma_bytes():
+    rng = np.random.default_rng(3)
+    luma, chroma = rng.integers(0, 256, (4, 6), dtype=np.uint8), rng.integers(0, 256, (4, 6), dtype=np.uint8)
+    uyvy = np.stack([chroma, luma], axis=2)  # U Y V Y ...: chroma in the even bytes
+    yuyv = np.stack([luma, chroma], axis=2)
+    np.testing.assert_array_equal(decode_image_message(_Image(uyvy, "yuv422"), "sensor_msgs/msg/Image", "t"), luma)
+    np.testing.assert_array_equal(decode_image_message(_Image(yuyv, "yuv422_yuy2"), "sensor_msgs/msg/Image", "t"), luma)
+
+
+@pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
+def test_bayer_mosaics_demosaic_to_the_scene_grey(pattern):
+    """A scene of smooth colour (red rising to the right, blue downwards) sampled through each ROS
+    Bayer pattern (the letters: the colours of the top-left 2x2 block, row by row) decodes to the
+    scene's grey; the wrong pattern (red and blue swapped: 0.299 and 0.114 of the grey) is far off."""
+    rows, columns = np.mgrid[0:48, 0:64].astype(float)
+    bgr = np.stack([40 + 3 * rows, np.full_like(rows, 120.0), 20 + 3 * columns], axis=2).round().astype(np.uint8)
+    channel = {"b": 0, "g": 1, "r": 2}
+    mosaic = np.empty(bgr.shape[:2], np.uint8)
+    for index, colour in enumerate(pattern):
+        row, column = divmod(index, 2)
+        mosaic[row::2, column::2] = bgr[row::2, column::2, channel[colour]]
+    expected = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(float)
+    inside = (slice(2, -2), slice(2, -2))
+    for encoding, image in ((f"bayer_{pattern}8", mosaic), (f"bayer_{pattern}16", mosaic.astype(np.uint16) * 256)):
+        decoded = decode_image_message(_Image(image, encoding), "sensor_msgs/msg/Image", "t").astype(float)
+        assert np.abs(decoded - expected)[inside].max() <= 2.0, encoding
+    swapped = pattern.replace("r", "x").replace("b", "r").replace("x", "b")
+    wrong = decode_image_message(_Image(mosaic, f"bayer_{swapped}8"), "sensor_msgs/msg/Image", "t").astype(float)
+    assert np.abs(wrong - expected)[inside].mean() > 5.0
 
 
 def test_a_recording_pickles_without_its_reader_and_reads_on(folder, tmp_path):
