@@ -29,7 +29,7 @@ from ampc_vo.rig import BodyBox, Camera, Rig
 from ampc_vo.backend.smoother import MotionInit, MotionStatus
 from ampc_vo.scale.stereo import StereoMotion, StereoScaleOptions, stereo_motion
 from ampc_vo.solvers import RansacConfig as SolverRansacConfig
-from ampc_vo.solvers.estimates import as_groups, median_parallax
+from ampc_vo.solvers.estimates import STILL_PARALLAX_SIGMAS, as_groups, median_parallax
 from ampc_vo.solvers import SolverStatus, TractorMotionEstimate, ackermann_motion, estimate_hitch_angles, estimate_tractor_motion, refine_joint
 
 logger = logging.getLogger(__name__)
@@ -37,9 +37,6 @@ logger = logging.getLogger(__name__)
 # factor by which a measured chord may exceed, or fall short of, what the last keyframes' estimated
 # speed allows (MotionInitializer._reachable)
 _SPEED_SLACK = 2.0
-# median parallax of still points in units of the pixel noise: two noisy observations differ by a
-# Rayleigh distance of scale sqrt(2) sigma, median sqrt(2 ln 2) sqrt(2) sigma (_solver_config)
-_STILL_PARALLAX_SIGMAS = 2.0 * float(np.sqrt(np.log(2.0)))  # 1.665
 # yaw-change uncertainty given to the ground-plane chord: floor of the RANSAC's sigma, and the value
 # used when it has none (radians)
 _MIN_YAW_SIGMA = float(np.radians(0.01))
@@ -129,7 +126,7 @@ def _solver_config(config: VoConfig, cameras: list[Camera]) -> SolverRansacConfi
     # null: the median parallax of still points under the configured pixel noise
     standstill_px = config.ransac.standstill_parallax_px
     if standstill_px is None:
-        standstill_px = _STILL_PARALLAX_SIGMAS * config.smoother.pixel_sigma
+        standstill_px = STILL_PARALLAX_SIGMAS * config.smoother.pixel_sigma
     return SolverRansacConfig(
         standstill_parallax=standstill_px / focal,
         sampson_threshold=config.ransac.threshold_px / focal,

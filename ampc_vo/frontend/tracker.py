@@ -63,6 +63,7 @@ import cv2
 import numpy as np
 
 from ampc_vo.config import StereoConfig, TrackerConfig
+from ampc_vo.epipolar import essential_from_bearings, essential_sampson
 from ampc_vo.errors import DatasetError
 from ampc_vo.observations import CameraObservations
 from ampc_vo.frontend.vignetting import VignettingFit, exposure_ratio
@@ -591,55 +592,6 @@ def detection_mask(pixels: np.ndarray, image_size: tuple[int, int], radius: floa
 
 
 # ---------------------------------------------------------------------- RANSAC on bearings
-def essential_from_bearings(bearings_i: np.ndarray, bearings_j: np.ndarray) -> np.ndarray:
-    """Linear (8-point) essential matrices ``E`` with ``f_i^T E f_j = 0``, projected onto the
-    essential manifold (singular values 1, 1, 0).
-
-    ``bearings_i``, ``bearings_j``: (..., M, 3) with M >= 8 unit bearings; returns (..., 3, 3).
-    The null vector is the eigenvector of ``A^T A`` (9 x 9) with the smallest eigenvalue.
-    """
-    design = (bearings_i[..., :, :, None] * bearings_j[..., :, None, :]).reshape(*bearings_i.shape[:-1], 9)
-    _, vectors = np.linalg.eigh(np.swapaxes(design, -1, -2) @ design)
-    essential = vectors[..., :, 0].reshape(*bearings_i.shape[:-2], 3, 3)
-    u, _, vt = np.linalg.svd(essential)
-    return u @ (np.array([1.0, 1.0, 0.0])[:, None] * vt)
-
-
-def motion_from_essential(essential: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One ``(R, t)`` per essential matrix with ``E ~ [t]x R`` (Hartley-Zisserman result 9.19).
-
-    Only one of the four decompositions is returned: the Sampson GEC residual (``gec_sampson``
-    with the camera at the origin) has the same magnitude for all four.
-    """
-    u, _, vt = np.linalg.svd(essential)
-    u = u * np.sign(np.linalg.det(u))[..., None, None]
-    vt = vt * np.sign(np.linalg.det(vt))[..., None, None]
-    w = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    return u @ w @ vt, u[..., :, 2]
-
-
-def essential_sampson(essential: np.ndarray, bearings_i: np.ndarray, bearings_j: np.ndarray) -> np.ndarray:
-    """Sampson residual on the sphere of ``f_i^T E f_j`` for (..., 3, 3) hypotheses and (N, 3) bearings.
-
-    ``r / sqrt(|P_fi E f_j|^2 + |P_fj E^T f_i|^2)``: for an essential matrix ``E = -[t]x R`` this is
-    exactly ``gec_sampson(f_i, f_j, R, t, 0)`` (paper eq. (1) for one central camera; tested), written
-    with matrix products because it scores every RANSAC hypothesis on every track each frame.
-    """
-    e_fj = bearings_j @ np.swapaxes(essential, -1, -2)   # (..., N, 3) = E f_j
-    et_fi = bearings_i @ essential                       # (..., N, 3) = E^T f_i
-    residual = _dot3(bearings_i, e_fj)
-    squared = _dot3(e_fj, e_fj) + _dot3(et_fi, et_fi) - 2.0 * residual * residual
-    return residual / np.sqrt(np.maximum(squared, 1e-24))
-
-
-def _dot3(first: np.ndarray, second: np.ndarray) -> np.ndarray:
-    """Dot products along the last axis (of length 3) of two broadcastable arrays, summed left to
-    right: the bits of ``np.sum(first * second, axis=-1)`` at a fraction of its time (numpy's
-    reduction over a short last axis was two thirds of :func:`essential_sampson`)."""
-    product = first * second
-    return (product[..., 0] + product[..., 1]) + product[..., 2]
-
-
 def epipolar_inliers(
     bearings_i: np.ndarray,
     bearings_j: np.ndarray,

@@ -143,6 +143,11 @@ def parallax(group: Group) -> np.ndarray:
     return np.arccos(np.clip(np.sum(group.bearings_i * group.bearings_j, axis=1), -1.0, 1.0))
 
 
+# median parallax of still points in units of the pixel noise: two noisy observations differ by a
+# Rayleigh distance of scale sqrt(2) sigma, median sqrt(2 ln 2) sqrt(2) sigma
+STILL_PARALLAX_SIGMAS = 2.0 * float(np.sqrt(np.log(2.0)))  # 1.665
+
+
 def median_parallax(groups: Sequence[Group]) -> float:
     """Median angle (radians) between the two body-frame bearings of each correspondence."""
     angles = np.concatenate([parallax(group) for group in groups] or [np.zeros(0)])
@@ -198,6 +203,9 @@ class TractorMotionEstimate:
     chord_sign: float = 1.0
     rms_residual: float = float("nan")
     attitude: tuple[float, float] = (0.0, 0.0)  # pitch, roll change (radians) in T_i_j beyond the planar motion
+    # a standstill the pair's own noise explains: the median parallax (radians) below which it is one
+    # (ransac._noise_standstill; NaN where the configured standstill_parallax decided)
+    noise_still_parallax: float = float("nan")
 
     @property
     def ok(self) -> bool:

@@ -12,6 +12,7 @@ Degenerate input returns a :class:`SolverStatus`, never an exception or a silent
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Sequence
 from typing import Any
@@ -20,11 +21,13 @@ import numpy as np
 
 from ampc_vo.geometry import make_pose
 from ampc_vo.solvers.attitude import attitude_motion, estimate_attitude_motion
+from ampc_vo.solvers.noise import MAD_TO_SIGMA, correspondence_noise
 from ampc_vo.solvers.refine import refine_tractor, refine_tractor_batch, refine_trailer_yaw, sampson_residuals
 from ampc_vo.solvers.status import SolverStatus
 from ampc_vo.solvers.tractor import ackermann_motion, tractor_motion_2pt_batch, tractor_yaw_1pt_batch
 from ampc_vo.solvers.trailer import hitch_angles_1pt_batch, positive_depth, trailer_motion_from_yaw
 from ampc_vo.solvers.estimates import (
+    STILL_PARALLAX_SIGMAS,
     Group,
     HitchEstimate,
     RansacConfig,
@@ -136,8 +139,8 @@ def estimate_tractor_motion(
         if sum(len(g) for g in groups) < max(2, config.min_inliers):
             return TractorMotionEstimate(SolverStatus.TOO_FEW_POINTS, inlier_masks=empty_masks)
     planar = _estimate_planar(groups, empty_masks, axle_x, config, chord_prior, rng, moving, direction)
-    if planar.status is SolverStatus.STANDSTILL and not moving and median_parallax(groups) >= config.standstill_parallax \
-            and _translated(groups, chord_prior, config):
+    if planar.status is SolverStatus.STANDSTILL and not moving and not np.isfinite(planar.noise_still_parallax) \
+            and median_parallax(groups) >= config.standstill_parallax and _translated(groups, chord_prior, config):
         # the tracks moved, but the refinement shrank the chord below min_chord (straight driving:
         # no tracks fix it); a truck that was moving and whose tracks translated is known to move:
         # estimated again as such, its still tracks left out (as when a standstill is not reachable)
@@ -243,6 +246,11 @@ def _estimate_planar(groups: Sequence[Group], empty_masks: list[np.ndarray], axl
         if not refined:
             return _scale_unobservable(groups, pool[0], axle_x, config, chord_prior, drawn, float("inf"))
     cost, refined_yaw, refined_chord, covariance, rms, refined_inliers, start = refined[0]
+    if not moving:
+        still = _noise_standstill(groups, [(model[1], model[2]) for model in refined] + [(pool[0][1], pool[0][2])], axle_x)
+        if still is not None:
+            logger.debug("median parallax %.2e rad within the tracks' own noise (still below %.2e rad): a standstill", median_parallax(groups), still)
+            return dataclasses.replace(_standstill(groups), num_hypotheses=drawn, noise_still_parallax=still)
     chord_sigma = float(np.sqrt(covariance[1, 1])) if np.isfinite(covariance[1, 1]) else float("inf")
     if config.chord_direction_sigma > 0.0:  # the model's share (RansacConfig): dominant at small yaw changes
         lever = float(np.max(np.abs(centers[scale_capable, 0] - axle_x)))
@@ -266,6 +274,43 @@ def _estimate_planar(groups: Sequence[Group], empty_masks: list[np.ndarray], axl
     T_i_j = make_pose(*ackermann_motion(refined_yaw, refined_chord, axle_x))
     sign = 1.0 if refined_chord >= 0 else -1.0
     return TractorMotionEstimate(SolverStatus.OK, refined_yaw, refined_chord, T_i_j, masks, count, drawn, yaw_sigma, chord_sigma, sign, rms)
+
+
+# still correspondences' median parallax straddles STILL_PARALLAX_SIGMAS (1.665) times the noise
+# measured from them, which the sample's medians spread (about 10 % with 100 correspondences; measured
+# 1.44-1.68 at rest in realistic bearings with 1.0 and 1.5 px of noise, 1.6-1.9 with 200 points of one
+# camera at 2 px): motion needs that exceeded by this factor (2.16 times the noise; at 1.5 px a
+# chord of 0.2 m showed 2.4 times it, 0.12 m 1.9)
+_NOISE_STILL_MARGIN = 1.3
+_NOISE_SEED = 0  # the noise measure's own samples (correspondence_noise): reproducible, the RANSAC's stream untouched
+
+
+def _noise_standstill(groups: Sequence[Group], motions: Sequence[tuple[float, float]], axle_x: float) -> float | None:
+    """Whether a pair whose median parallax is above ``standstill_parallax`` is a standstill all the
+    same, under the noise its own correspondences measure: the median parallax (radians) below which
+    it is one when it is, else None.
+
+    ``ransac.standstill_parallax`` (from ``smoother.pixel_sigma``) assumes the tracks' noise; tracks
+    noisier than that show a median parallax above it at rest, and the motion fitted to that noise
+    measured a chord of it (a standing start read as 0.46 m/s with 1.5 px of noise). At rest no
+    motion explains the parallax, moving one explains most of it: the ratio of the median parallax
+    to the noise decides, whatever the noise. A standstill needs ``_NOISE_STILL_MARGIN`` times the
+    still points' median parallax (``STILL_PARALLAX_SIGMAS`` sigma) not reached at the noise of
+    both measures: the Sampson residuals under the best of the pair's planar ``motions`` ((yaw
+    change, chord): the refined models and RANSAC's best; cheap, and the planar model's error
+    adds to it: braking pitches the body) and, where that says standstill, under each camera's
+    own essential matrix (:func:`~ampc_vo.solvers.noise.correspondence_noise`: pitch and roll
+    explained; without it braking to rest was cut short by up to a second)."""
+    parallax = median_parallax(groups)
+    yaw_changes, chords = (np.array(values, dtype=float) for values in zip(*motions))
+    residuals = sampson_residuals(groups, *ackermann_motion(yaw_changes, chords, axle_x))
+    if residuals.size == 0:
+        return None
+    planar_noise = MAD_TO_SIGMA * float(np.min(np.median(np.abs(residuals), axis=1)))
+    if parallax >= _NOISE_STILL_MARGIN * STILL_PARALLAX_SIGMAS * planar_noise:
+        return None
+    still = _NOISE_STILL_MARGIN * STILL_PARALLAX_SIGMAS * correspondence_noise(groups, np.random.default_rng(_NOISE_SEED))
+    return still if parallax < still else None
 
 
 def _translated(groups: Sequence[Group], chord_prior: float | None, config: RansacConfig) -> bool:

@@ -10,11 +10,10 @@ import cv2
 import numpy as np
 import pytest
 
-from ampc_vo.epipolar import gec_sampson
+from ampc_vo.epipolar import essential_from_bearings, essential_sampson, gec_sampson, motion_from_essential
 from ampc_vo.errors import ConfigError, DatasetError
-from ampc_vo.frontend.tracker import (CameraTracker, ScratchArrays, corner_ratio, essential_from_bearings, flow_support, essential_sampson, epipolar_inliers, grid_cells,
-                                      exposure_ratio, image_gradients, motion_from_essential, select_per_cell, structure_tensors,
-                                      track_forward_backward)
+from ampc_vo.frontend.tracker import (CameraTracker, ScratchArrays, corner_ratio, flow_support, epipolar_inliers, grid_cells,
+                                      exposure_ratio, image_gradients, select_per_cell, structure_tensors, track_forward_backward)
 from ampc_vo.frontend.multi_camera import MultiCameraFrontend
 from ampc_vo.config import TrackerConfig, stereo_config_from_dict, tracker_config_from_dict
 from ampc_vo.geometry import triangulate_midpoint

@@ -14,6 +14,7 @@ from ampc_vo.solvers import (
     refine_joint,
 )
 from ampc_vo.sim.two_view import make_two_view_problem, reference_rig
+from ampc_vo.solvers.estimates import STILL_PARALLAX_SIGMAS, as_groups, median_parallax
 
 DESIGN_2_3 = dict(pixel_noise_px=1.0, focal_px=700.0, points_per_body=100, outlier_fraction=0.1, chord=1.0,
                   yaw_change=(-0.1, 0.1), hitch_angle=(-np.deg2rad(45), np.deg2rad(45)))
@@ -286,3 +287,21 @@ def test_a_chord_refined_to_nothing_is_no_standstill_where_the_tracks_translated
     pitch = rot_y(np.radians(0.6))  # the rebound after a stop: 7 px at 700 px, above the standstill parallax
     pitched = [(bearings_i, bearings_j @ pitch.T, center) for bearings_i, bearings_j, center in still.groups("tractor")]
     assert estimate_tractor_motion(pitched, still.tractor_axle_x, chord_prior=1.5).status is SolverStatus.STANDSTILL
+
+
+def test_a_standstill_is_recognised_under_tracks_noisier_than_configured(rig: Rig) -> None:
+    """Tracks with 2 px of noise against a ``standstill_parallax`` for 1 px (still points' median
+    parallax 3.3 px against 1.7 px): at rest the motion fitted to the noise explains none of the
+    parallax, and the pair's own noise makes it a standstill, even with a moving prediction (the
+    scale bootstrap's 1 m/s); moving 0.6 m with the same noise it is not one."""
+    config = RansacConfig(standstill_parallax=STILL_PARALLAX_SIGMAS * 1.0 / 700.0, min_inlier_fraction=0.25)
+    noisy = {**DESIGN_2_3, "pixel_noise_px": 2.0, "outlier_fraction": 0.1, "yaw_change": 0.0, "points_per_body": 200}
+    for seed in range(6):
+        still = make_two_view_problem(np.random.default_rng(60 + seed), rig=rig, **{**noisy, "chord": 0.0})
+        assert median_parallax(as_groups(still.groups("tractor"))) > 1.5 * config.standstill_parallax
+        for prior in (None, 0.5):
+            estimate = estimate_tractor_motion(still.groups("tractor"), still.tractor_axle_x, config, chord_prior=prior)
+            assert estimate.status is SolverStatus.STANDSTILL, (seed, prior)
+        moving = make_two_view_problem(np.random.default_rng(70 + seed), rig=rig, **{**noisy, "chord": 0.6})
+        estimate = estimate_tractor_motion(moving.groups("tractor"), moving.tractor_axle_x, config, chord_prior=0.5)
+        assert estimate.status in (SolverStatus.OK, SolverStatus.SCALE_UNOBSERVABLE), seed
