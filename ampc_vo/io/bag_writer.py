@@ -42,7 +42,9 @@ class RecordingContent:
     """What goes into the recording besides the images (module docstring). ``compressed``: the
     cameras written as ``CompressedImage`` (``image_format`` ``jpeg`` or ``png``); ``delays``:
     topic -> transport delay (s) added to the log time; ``drop``: camera -> frames left out;
-    ``time_origin``: seconds added to every stamp (``None``: :func:`recording_time_origin`)."""
+    ``time_origin``: seconds added to every stamp (``None``: :func:`recording_time_origin`);
+    ``unstamped``: cameras whose images carry a header stamp of 0 (a driver that does not stamp:
+    only the log time tells when they came)."""
 
     compressed: tuple[str, ...] = ()
     image_format: str = "jpeg"
@@ -55,6 +57,7 @@ class RecordingContent:
     delays: dict[str, float] = field(default_factory=dict)
     drop: dict[str, tuple[int, ...]] = field(default_factory=dict)
     time_origin: float | None = None
+    unstamped: tuple[str, ...] = ()
 
 
 def recording_time_origin(dataset: object, content: RecordingContent = RecordingContent()) -> float:
@@ -192,7 +195,9 @@ def write_recording(dataset: object, out: str | Path, format: str = "ros2-mcap",
                 compressed = camera.name in content.compressed
                 msgtype = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
                 # images are loaded and encoded when written (one in memory at a time)
-                message = partial(_image_message, sink.typestore, partial(dataset.load_image, frame, camera.name), stamp, camera.name, sink.ros1, compressed, content)
+                header_stamp = 0.0 if camera.name in content.unstamped else stamp
+                message = partial(_image_message, sink.typestore, partial(dataset.load_image, frame, camera.name), header_stamp, camera.name, sink.ros1,
+                                  compressed, content)
                 events.append((stamp + content.delays.get(camera.topic, 0.0), len(events), camera.topic, msgtype, message))
         if content.wheel_speed is not None:
             msgtype = SPEED_TYPES[content.wheel_speed_type]

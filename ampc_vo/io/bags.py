@@ -7,7 +7,8 @@ A :class:`Recording` presents the interface the image frontend reads our dataset
 topic of its images (rig.yaml camera key ``topic``) carrying ``sensor_msgs/Image`` (mono8/16, bgr8/16,
 rgb8/16, bgra, rgba, 8UC1/3/4, 16UC1, yuv422 (UYVY) and yuv422_yuy2, Bayer mosaics bayer_rggb8/16 and the
 other three patterns, demosaiced) or ``sensor_msgs/CompressedImage`` (JPEG, PNG); each image's header stamp
-is its capture time (DESIGN section 5: the cameras need not be synchronised).
+is its capture time (DESIGN section 5: the cameras need not be synchronised; a camera whose driver
+leaves the stamps unset gets the log's receive times, with a warning: :func:`capture_times`).
 
 Frames (:func:`group_frames`): the camera with the most images (among those at the slowest rate)
 is the reference; its stamps (with
@@ -279,16 +280,37 @@ def _log_coverage(grouping: FrameGrouping, where: str) -> None:
         LOGGER.warning("%s: camera %r %s: those frames run without it (its tracker re-initialises)", where, name, ", ".join(parts))
 
 
-def _sorted_unique(stamps: np.ndarray, logtimes: np.ndarray, name: str, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """Stamps sorted (messages out of order in the log), duplicates dropped, each logged once."""
-    order = np.argsort(stamps, kind="stable")
+_MAX_TRANSPORT_DELAY_S = 1.0  # capture to log time: a header stamp of 0 with a log time later than this is unset
+
+
+def capture_times(headers: np.ndarray, logtimes: np.ndarray, name: str, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A camera's capture times (s) from its images' header stamps ``headers`` (s) and log times
+    (ns): ``(times, logtimes, headers)`` of the images kept. A camera whose driver leaves most
+    stamps unset (0) gets the log's receive times instead (which carry the transport delay), with a
+    warning; a few unset stamps among set ones drop those images (logged). A stamp of 0 is unset
+    only where the log time is more than ``_MAX_TRANSPORT_DELAY_S`` later (a recording whose clock
+    starts at 0, as one written from a simulated dataset, has a capture at 0)."""
+    unset = (headers <= 0.0) & (logtimes * 1e-9 > headers + _MAX_TRANSPORT_DELAY_S)
+    if np.count_nonzero(unset) * 2 > len(headers):
+        LOGGER.warning("%s: camera %r: %d of %d images have no header stamp (0): the log's receive times are taken as capture times "
+                       "(they include the transport delay)", where, name, int(np.count_nonzero(unset)), len(headers))
+        return logtimes * 1e-9, logtimes, headers
+    if np.any(unset):
+        LOGGER.warning("%s: camera %r: %d image(s) without a header stamp (0) dropped", where, name, int(np.count_nonzero(unset)))
+    return headers[~unset], logtimes[~unset], headers[~unset]
+
+
+def _sorted_unique(times: np.ndarray, logtimes: np.ndarray, headers: np.ndarray, name: str, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Capture times sorted (messages out of order in the log), duplicates dropped, each logged
+    once; the log times and header stamps of the images kept alongside."""
+    order = np.argsort(times, kind="stable")
     if np.any(np.diff(order) < 0):
-        LOGGER.warning("%s: camera %r: %d image(s) out of order in the log: sorted by header stamp", where, name, int(np.count_nonzero(np.diff(stamps) < 0)))
-    stamps, logtimes = stamps[order], logtimes[order]
-    keep = np.concatenate([[True], np.diff(stamps) > 0])
+        LOGGER.warning("%s: camera %r: %d image(s) out of order in the log: sorted by capture time", where, name, int(np.count_nonzero(np.diff(times) < 0)))
+    times, logtimes, headers = times[order], logtimes[order], headers[order]
+    keep = np.concatenate([[True], np.diff(times) > 0])
     if not np.all(keep):
-        LOGGER.warning("%s: camera %r: %d image(s) with a repeated header stamp dropped", where, name, int(np.count_nonzero(~keep)))
-    return stamps[keep], logtimes[keep]
+        LOGGER.warning("%s: camera %r: %d image(s) with a repeated capture time dropped", where, name, int(np.count_nonzero(~keep)))
+    return times[keep], logtimes[keep], headers[keep]
 
 
 # ---------------------------------------------------------------------- images
@@ -344,9 +366,9 @@ class Recording:
         finally:
             reader.close()
         where = str(self.root)
-        stamps, logtimes = {}, {}
+        stamps, logtimes, headers = {}, {}, {}
         for name, topic in self._topics.items():
-            stamps[name], logtimes[name] = _sorted_unique(*scanned[topic], name, where)
+            stamps[name], logtimes[name], headers[name] = _sorted_unique(*capture_times(*scanned[topic], name, where), name, where)
         grouping = group_frames(stamps, where)
         _log_coverage(grouping, where)
         self.timestamps = grouping.timestamps
@@ -359,7 +381,7 @@ class Recording:
             present = index >= 0
             self.camera_timestamps[name] = np.where(present, stamps[name][np.maximum(index, 0)], self.timestamps + grouping.offsets[name])
             self._logtimes[name] = np.where(present, logtimes[name][np.maximum(index, 0)], -1)
-            self._stamps[name] = np.where(present, stamps[name][np.maximum(index, 0)], np.nan)
+            self._stamps[name] = np.where(present, headers[name][np.maximum(index, 0)], np.nan)  # the header stamp: finds the message
         self.offsets = dict(grouping.offsets)
         LOGGER.info("%s: %d frames of cameras %s (reference %s; offsets %s ms)", where, len(self), list(self.camera_names), self.reference_camera,
                     ", ".join(f"{name} {1e3 * offset:+.1f}" for name, offset in self.offsets.items()))

@@ -214,10 +214,11 @@ def test_images_out_of_stamp_order_are_sorted_and_repeats_dropped(caplog):
     stamps = np.array([0.0, 0.2, 0.1, 0.3, 0.3, 0.4])
     logtimes = np.arange(6) * 10
     with caplog.at_level(logging.WARNING):
-        sorted_stamps, sorted_logtimes = _sorted_unique(stamps, logtimes, "front", "log")
+        sorted_stamps, sorted_logtimes, sorted_headers = _sorted_unique(stamps, logtimes, stamps + 5.0, "front", "log")
     np.testing.assert_array_equal(sorted_stamps, [0.0, 0.1, 0.2, 0.3, 0.4])
     np.testing.assert_array_equal(sorted_logtimes, [0, 20, 10, 30, 50])  # each image keeps its own log time
-    assert "1 image(s) out of order in the log" in caplog.text and "1 image(s) with a repeated header stamp dropped" in caplog.text
+    np.testing.assert_array_equal(sorted_headers, sorted_stamps + 5.0)  # ... and its own header stamp
+    assert "1 image(s) out of order in the log" in caplog.text and "1 image(s) with a repeated capture time dropped" in caplog.text
 
 
 def test_the_export_script_writes_a_log_and_its_rig(tiny_dataset, tmp_path):
@@ -289,3 +290,36 @@ def test_a_camera_firing_before_time_zero_is_written_on_a_shifted_clock(tmp_path
     with pytest.raises(DatasetError, match="time origin 0.0 s leaves stamps before 0 s"):
         write_recording(folder, tmp_path / "zero.mcap", "mcap", RecordingContent(time_origin=0.0))
     assert not (tmp_path / "zero.mcap").exists()
+
+
+def test_a_camera_without_header_stamps_takes_the_log_times(folder, tmp_path, caplog):
+    """A driver that leaves the header stamp at 0: the camera's capture times are the log's receive
+    times (here the capture time plus a 20 ms transport delay), with a warning, and its images are
+    found and decoded; without the fallback every image but one was a repeated stamp."""
+    topic = folder.rig.camera("left").topic or "/left/image_raw"
+    log = _log(folder, tmp_path, "ros2-mcap", unstamped=("left",), delays={topic: 0.02})
+    with caplog.at_level("WARNING"):
+        recording = read_recording(log, folder.rig)
+    assert any("have no header stamp" in record.message and "'left'" in record.message for record in caplog.records)
+    assert len(recording) == FRAMES
+    np.testing.assert_allclose(recording.camera_timestamps["left"], folder.camera_timestamps["left"] + 0.02, atol=1e-6)
+    for camera in folder.camera_names:
+        if camera != "left":
+            np.testing.assert_allclose(recording.camera_timestamps[camera], folder.camera_timestamps[camera], atol=1e-9)
+    np.testing.assert_array_equal(recording.load_image(FRAMES - 1, "left"), folder.load_image(FRAMES - 1, "left"))
+
+
+def test_a_few_unset_stamps_are_dropped_and_most_unset_take_the_log_times(caplog):
+    from ampc_vo.io.bags import capture_times
+
+    headers = np.array([1.0, 0.0, 1.1, 1.2])
+    logtimes = np.array([1_005_000_000, 1_055_000_000, 1_105_000_000, 1_205_000_000])
+    with caplog.at_level("WARNING"):
+        times, kept_logtimes, kept_headers = capture_times(headers, logtimes, "left", "t")
+    np.testing.assert_array_equal(times, [1.0, 1.1, 1.2])
+    np.testing.assert_array_equal(kept_logtimes, logtimes[[0, 2, 3]])
+    assert "1 image(s) without a header stamp (0) dropped" in caplog.text
+    times, _, kept_headers = capture_times(np.zeros(4), logtimes, "left", "t")
+    np.testing.assert_allclose(times, logtimes * 1e-9)
+    np.testing.assert_array_equal(kept_headers, np.zeros(4))
+
