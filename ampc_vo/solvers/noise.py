@@ -1,4 +1,4 @@
-"""The noise of a pair's correspondences measured from themselves (DESIGN 2.1: the standstill test).
+"""The noise of a pair's correspondences measured from themselves (DESIGN 11: the standstill test).
 
 :func:`correspondence_noise` fits each camera's relative motion as an essential matrix (5 degrees of
 freedom: any rotation, pitch and roll on the suspension included, and a translation direction) by

@@ -297,8 +297,8 @@ def _noise_standstill(groups: Sequence[Group], motions: Sequence[tuple[float, fl
     to the noise decides, whatever the noise. A standstill needs ``_NOISE_STILL_MARGIN`` times the
     still points' median parallax (``STILL_PARALLAX_SIGMAS`` sigma) not reached at the noise of
     both measures: the Sampson residuals under the best of the pair's planar ``motions`` ((yaw
-    change, chord): the refined models and RANSAC's best; cheap, and the planar model's error
-    adds to it: braking pitches the body) and, where that says standstill, under each camera's
+    change, chord): the refined models and RANSAC's best; cheap, and from above: the planar model's
+    error (braking pitches the body) and the outliers add to their median) and, where that says standstill, under each camera's
     own essential matrix (:func:`~ampc_vo.solvers.noise.correspondence_noise`: pitch and roll
     explained; without it braking to rest was cut short by up to a second)."""
     parallax = median_parallax(groups)
