@@ -305,19 +305,6 @@ _IDENTITY_POSE = gtsam.Pose3()
 _HITCH_STOP_NOISE = gtsam.noiseModel.Isotropic.Sigma(1, np.radians(1.0))  # a hard stop: 1 degree
 
 
-_CHOLESKY, _QR = "MULTIFRONTAL_CHOLESKY", "MULTIFRONTAL_QR"
-
-
-def _lm_params(config: VoConfig, linear_solver: str) -> gtsam.LevenbergMarquardtParams:
-    """The smoother's Levenberg-Marquardt parameters (``smoother.lm_*``) with ``linear_solver``."""
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(config.lm_iterations)
-    params.setlambdaInitial(config.smoother.lm_lambda_initial)
-    params.setRelativeErrorTol(config.smoother.lm_relative_error_tol)
-    params.setLinearSolverType(linear_solver)
-    return params
-
-
 class ArticulatedSmoother:
     """Fixed-lag smoother of the articulated vehicle (module docstring).
 
@@ -333,9 +320,12 @@ class ArticulatedSmoother:
         self.use_trailer = rig.has_trailer and config.mode != "tractor_only"
         self.joint = self.use_trailer and config.mode in ("full", "no_trailer_constraint")
         self.trailer_nonholonomic = self.use_trailer and config.mode in ("full", "separate")
-        self._params = _lm_params(config, _CHOLESKY)
-        self._smoother = gtsam.BatchFixedLagSmoother(config.smoother.lag_s, self._params)
-        self._qr_since: float | None = None  # the window is solved with QR since this time (_solve_again_with_qr)
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(config.lm_iterations)
+        params.setlambdaInitial(config.smoother.lm_lambda_initial)
+        params.setRelativeErrorTol(config.smoother.lm_relative_error_tol)
+        self._params = params
+        self._smoother = gtsam.BatchFixedLagSmoother(config.smoother.lag_s, params)
         self._window: dict[int, _Keyframe] = {}
         self._estimate = gtsam.Values()
         self._pending_first: _Keyframe | None = None
@@ -375,8 +365,6 @@ class ArticulatedSmoother:
                                      for index in sorted(self._window) if self._window[index].timestamp < horizon])
         started = time.perf_counter()
         cpu_started = time.thread_time()
-        if self._qr_since is not None and keyframe.timestamp - self._qr_since > self.config.smoother.lag_s:
-            self._back_to_cholesky(keyframe)
         pending = _Pending()
         published_indices = []
         try:
@@ -470,57 +458,10 @@ class ArticulatedSmoother:
         logger.debug("frame %d: capture-time extrinsics rebuilt from the optimised twist", keyframe.frame)
         return True
 
-    def _rebuilt(self, params: gtsam.LevenbergMarquardtParams) -> gtsam.BatchFixedLagSmoother:
-        """A new smoother with ``params`` holding this one's whole problem: its factors (the
-        marginal priors of what left the window included, the same objects: :meth:`_factor_index`
-        finds them), its linearisation point and timestamps, optimised once. After a failed update
-        these include the update's keyframe (GTSAM adds them before it optimises)."""
-        graph = self._smoother.getFactors()
-        factors = gtsam.NonlinearFactorGraph()
-        for i in range(graph.size()):
-            if graph.exists(i):
-                factors.add(graph.at(i))
-        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
-        for key, stamp in self._smoother.timestamps().items():
-            stamps.insert((key, stamp))
-        smoother = gtsam.BatchFixedLagSmoother(self.config.smoother.lag_s, params)
-        smoother.update(factors, self._smoother.getLinearizationPoint(), stamps)
-        return smoother
-
-    def _solve_again_with_qr(self, keyframe: _Keyframe) -> bool:
-        """The failed update's window solved again with a QR factorisation (DESIGN 3): the Cholesky
-        factorisation of GTSAM's default solver reports an indeterminate system where the window's
-        information spans many orders of magnitude (a weakly anchored position or hitch angle beside
-        millimetre priors), which QR, at about 1.3 times its time, solves. Kept until the window
-        has turned over (:meth:`_back_to_cholesky`). False when QR fails as well."""
-        try:
-            self._smoother = self._rebuilt(_lm_params(self.config, _QR))
-        except RuntimeError as error:
-            logger.warning("frame %d: the window solved again with QR failed as well (%s)", keyframe.frame, first_line(error))
-            return False
-        self._qr_since = keyframe.timestamp
-        logger.warning("frame %d: the window solved again with a QR factorisation (kept for %.1f s)", keyframe.frame, self.config.smoother.lag_s)
-        return True
-
-    def _back_to_cholesky(self, keyframe: _Keyframe) -> None:
-        """The window, solved with QR since a failed update, back on the (faster) Cholesky solver
-        once every keyframe of that time has left it; stays on QR where that fails."""
-        try:
-            self._smoother = self._rebuilt(self._params)
-        except RuntimeError as error:
-            logger.info("frame %d: the window stays on QR (Cholesky: %s)", keyframe.frame, first_line(error))
-            self._qr_since = keyframe.timestamp
-            return
-        self._qr_since = None
-
     def _recover(self, keyframe: _Keyframe, pending: _Pending, error: RuntimeError) -> None:
-        """An ill-conditioned window: solved again with QR (:meth:`_solve_again_with_qr`); where that
-        fails as well (e.g. a keyframe whose factors were all rejected), the new keyframe anchored to
-        its initial values with moderate priors and optimised again (logged)."""
-        logger.warning("frame %d: smoother update failed (%s)", keyframe.frame, first_line(error))
-        if self._solve_again_with_qr(keyframe):
-            return
-        logger.warning("frame %d: anchoring the keyframe to its initial motion", keyframe.frame)
+        """An ill-conditioned window (e.g. a keyframe whose factors were all rejected): anchor the new
+        keyframe to its initial values with moderate priors and optimise again (logged)."""
+        logger.warning("frame %d: smoother update failed (%s); anchoring the keyframe to its initial motion", keyframe.frame, first_line(error))
         k = keyframe.index
         anchor = gtsam.NonlinearFactorGraph()
         sigmas = _pose_sigma_vector(np.radians(0.5), 0.05)
@@ -543,7 +484,6 @@ class ArticulatedSmoother:
         config = self.config.smoother
         k = keyframe.index
         self._smoother = gtsam.BatchFixedLagSmoother(config.lag_s, self._params)
-        self._qr_since = None
         restart = _Pending()
         T_world_tractor = pending.values.atPose3(X(k)).matrix()
         restart.insert(X(k), T_world_tractor, keyframe.timestamp)
