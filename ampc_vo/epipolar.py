@@ -292,6 +292,17 @@ def essential_from_bearings(bearings_i: np.ndarray, bearings_j: np.ndarray) -> n
     return u @ (np.array([1.0, 1.0, 0.0])[:, None] * vt)
 
 
+ESSENTIAL_SAMPLE = 8  # correspondences of the linear essential matrix's minimal sample
+
+
+def sampled_essentials(bearings_i: np.ndarray, bearings_j: np.ndarray, rng: np.random.Generator, draws: int) -> np.ndarray:
+    """``draws`` essential-matrix hypotheses (draws, 3, 3) of :func:`essential_from_bearings` from
+    random samples of ``ESSENTIAL_SAMPLE`` distinct correspondences of the N (> 8) unit bearings each
+    (the frontend's RANSAC, the solvers' noise measure)."""
+    samples = np.argsort(rng.random((draws, len(bearings_i))), axis=1)[:, :ESSENTIAL_SAMPLE]
+    return essential_from_bearings(bearings_i[samples], bearings_j[samples])
+
+
 def motion_from_essential(essential: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One ``(R, t)`` per essential matrix with ``E ~ [t]x R`` (Hartley-Zisserman result 9.19).
 

@@ -63,7 +63,7 @@ import cv2
 import numpy as np
 
 from ampc_vo.config import StereoConfig, TrackerConfig
-from ampc_vo.epipolar import essential_from_bearings, essential_sampson
+from ampc_vo.epipolar import ESSENTIAL_SAMPLE, essential_from_bearings, essential_sampson, sampled_essentials
 from ampc_vo.errors import DatasetError
 from ampc_vo.observations import CameraObservations
 from ampc_vo.frontend.vignetting import VignettingFit, exposure_ratio
@@ -71,7 +71,6 @@ from ampc_vo.rig import Camera, replace_camera
 
 logger = logging.getLogger(__name__)
 
-_MIN_RANSAC_SAMPLE = 8
 
 
 @dataclass
@@ -607,13 +606,12 @@ def epipolar_inliers(
     inliers. Works for any central camera model because it never leaves the unit sphere.
     """
     count = len(bearings_i)
-    if count < _MIN_RANSAC_SAMPLE + 1:
+    if count < ESSENTIAL_SAMPLE + 1:
         return np.ones(count, bool)
-    samples = np.argsort(rng.random((iterations, count)), axis=1)[:, :_MIN_RANSAC_SAMPLE]
-    essentials = essential_from_bearings(bearings_i[samples], bearings_j[samples])
+    essentials = sampled_essentials(bearings_i, bearings_j, rng, iterations)
     inliers = np.abs(essential_sampson(essentials, bearings_i, bearings_j)) < threshold_rad  # (H, N)
     mask = inliers[int(np.argmax(inliers.sum(axis=1)))]
-    if mask.sum() >= _MIN_RANSAC_SAMPLE:
+    if mask.sum() >= ESSENTIAL_SAMPLE:
         refined = essential_from_bearings(bearings_i[mask], bearings_j[mask])
         refined_mask = np.abs(essential_sampson(refined, bearings_i, bearings_j)) < threshold_rad
         if refined_mask.sum() >= mask.sum():

@@ -16,11 +16,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ampc_vo.epipolar import essential_from_bearings, essential_sampson
+from ampc_vo.epipolar import ESSENTIAL_SAMPLE, essential_from_bearings, essential_sampson, sampled_essentials
 from ampc_vo.solvers.estimates import Group
 
 MAD_TO_SIGMA = 1.4826  # a normal distribution's sigma over its median absolute deviation
-_SAMPLE = 8            # the linear essential matrix's sample
 _INLIER_SIGMAS = 2.5   # the refit's correspondences: within this many robust sigmas of the best sample's fit
 _REFITS = 3           # refits of a camera's essential matrix on its inliers
 _CUT_NORMAL_SIGMA = float(np.sqrt(1.0 - 2.0 * _INLIER_SIGMAS * np.exp(-0.5 * _INLIER_SIGMAS**2) / np.sqrt(2.0 * np.pi)
@@ -32,7 +31,7 @@ def correspondence_noise(groups: Sequence[Group], rng: np.random.Generator, samp
     essential matrix (module docstring); NaN when no camera has more than 2 x 8 correspondences.
     ``samples``: 8-point samples per camera (with 30 % outliers one in 18 is clean; a minimal
     sample's fit under noise is rough, so the best of many: 64 missed at times)."""
-    residuals = [_camera_residuals(group, rng, samples) for group in groups if len(group) > 2 * _SAMPLE]
+    residuals = [_camera_residuals(group, rng, samples) for group in groups if len(group) > 2 * ESSENTIAL_SAMPLE]
     if not residuals:
         return float("nan")
     return robust_sigma(np.concatenate(residuals))
@@ -57,15 +56,13 @@ def _camera_residuals(group: Group, rng: np.random.Generator, samples: int) -> n
     lowers the robust sigma (a minimal sample's fit is poor under noise: from one, the median alone
     kept outliers in; the linear refit minimises the algebraic error, and once, at a 2.5 m
     chord, went 5 times wide)."""
-    count = len(group)
-    drawn = np.argsort(rng.random((samples, count)), axis=1)[:, :_SAMPLE]
-    essentials = essential_from_bearings(group.bearings_i[drawn], group.bearings_j[drawn])
+    essentials = sampled_essentials(group.bearings_i, group.bearings_j, rng, samples)
     residuals = essential_sampson(essentials, group.bearings_i, group.bearings_j)  # (H, N)
     residuals = residuals[int(np.argmin(np.median(np.abs(residuals), axis=1)))]
     sigma = robust_sigma(residuals)
     for _ in range(_REFITS):
         kept = np.abs(residuals) <= _INLIER_SIGMAS * sigma
-        if kept.sum() < 2 * _SAMPLE:
+        if kept.sum() < 2 * ESSENTIAL_SAMPLE:
             break
         refitted = essential_sampson(essential_from_bearings(group.bearings_i[kept], group.bearings_j[kept]), group.bearings_i, group.bearings_j)
         refitted_sigma = robust_sigma(refitted)

@@ -224,7 +224,8 @@ def _estimate_planar(groups: Sequence[Group], empty_masks: list[np.ndarray], axl
                      rng: np.random.Generator, moving: bool, direction: float | None) -> TractorMotionEstimate:
     """The planar motion (``R = Rz(phi)``) of :func:`estimate_tractor_motion` (``groups`` already
     without the still correspondences when ``moving``)."""
-    if not moving and median_parallax(groups) < config.standstill_parallax:
+    parallax = median_parallax(groups)
+    if not moving and parallax < config.standstill_parallax:
         return _standstill(groups)
     bearings_i, bearings_j, centers = _stack(groups)
     scale_capable = np.abs(centers[:, 0] - axle_x) > config.min_camera_axle_offset
@@ -247,9 +248,9 @@ def _estimate_planar(groups: Sequence[Group], empty_masks: list[np.ndarray], axl
             return _scale_unobservable(groups, pool[0], axle_x, config, chord_prior, drawn, float("inf"))
     cost, refined_yaw, refined_chord, covariance, rms, refined_inliers, start = refined[0]
     if not moving:
-        still = _noise_standstill(groups, [(model[1], model[2]) for model in refined] + [(pool[0][1], pool[0][2])], axle_x)
+        still = _noise_standstill(groups, parallax, [(model[1], model[2]) for model in refined] + [(pool[0][1], pool[0][2])], axle_x)
         if still is not None:
-            logger.debug("median parallax %.2e rad within the tracks' own noise (still below %.2e rad): a standstill", median_parallax(groups), still)
+            logger.debug("median parallax %.2e rad within the tracks' own noise (still below %.2e rad): a standstill", parallax, still)
             return dataclasses.replace(_standstill(groups), num_hypotheses=drawn, noise_still_parallax=still)
     chord_sigma = float(np.sqrt(covariance[1, 1])) if np.isfinite(covariance[1, 1]) else float("inf")
     if config.chord_direction_sigma > 0.0:  # the model's share (RansacConfig): dominant at small yaw changes
@@ -285,8 +286,8 @@ _NOISE_STILL_MARGIN = 1.3
 _NOISE_SEED = 0  # the noise measure's own samples (correspondence_noise): reproducible, the RANSAC's stream untouched
 
 
-def _noise_standstill(groups: Sequence[Group], motions: Sequence[tuple[float, float]], axle_x: float) -> float | None:
-    """Whether a pair whose median parallax is above ``standstill_parallax`` is a standstill all the
+def _noise_standstill(groups: Sequence[Group], parallax: float, motions: Sequence[tuple[float, float]], axle_x: float) -> float | None:
+    """Whether a pair whose median parallax (``parallax``, radians) is above ``standstill_parallax`` is a standstill all the
     same, under the noise its own correspondences measure: the median parallax (radians) below which
     it is one when it is, else None.
 
@@ -301,7 +302,6 @@ def _noise_standstill(groups: Sequence[Group], motions: Sequence[tuple[float, fl
     error (braking pitches the body) and the outliers add to their median) and, where that says standstill, under each camera's
     own essential matrix (:func:`~ampc_vo.solvers.noise.correspondence_noise`: pitch and roll
     explained; without it braking to rest was cut short by up to a second)."""
-    parallax = median_parallax(groups)
     yaw_changes, chords = (np.array(values, dtype=float) for values in zip(*motions))
     residuals = sampson_residuals(groups, *ackermann_motion(yaw_changes, chords, axle_x))
     if residuals.size == 0:
